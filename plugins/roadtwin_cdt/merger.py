@@ -1,0 +1,254 @@
+"""The CDT merger (Zhang et al.'s digital road twin generator, steps 2-5 of DESIGN.md).
+
+Per segment: re-mesh the planar road evenly; project each defect footprint vertically onto it
+and mark covered triangles (batched Möller–Trumbore rays plus a vertex-in-footprint test, both
+against the footprint grown by a ring margin); remove them; fill the gap between the hole's
+rim and each defect's boundary loop with a constrained Delaunay triangulation (Triangle, -YY:
+no Steiner points on the rim or the loop, so road and defect share exactly those vertices);
+restore elevation from the surface model. A defect that straddles the segment border is
+clipped to the segment first, so each neighbour gets its own part with identical border points.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+import triangle
+from shapely.geometry import Polygon
+
+from roadtwin_core import (ComposeRules, MergedSegment, Placement, RoadSegment, RoadtwinError,
+                           SurfaceModel, field)
+from roadtwin_core.geometry import boundary_edges, triangle_min_angles, vertical_ray_hits
+
+from .basemesh import segment_base_mesh
+from .clip import DefectPiece, clip_defect
+
+
+@dataclass
+class CDTParams:
+    ring_margin_m: float = field(0.0, lo=0.0, doc="road cut around each defect; 0 means 1.2 x the road edge")
+    min_angle_deg: float = field(20.5, lo=0.0, hi=30.0, doc="quality bound of the re-triangulated ring")
+
+
+class _SeamBroken(Exception):
+    """A defect loop crossed a kept road edge; retried with a wider cut."""
+
+
+class _LowQuality(Exception):
+    """Ring triangles below the angle bound sit on these rim edges; retried with them cut."""
+
+    def __init__(self, rim_edges: np.ndarray) -> None:
+        self.rim_edges = rim_edges
+
+
+def _faces_on_edges(faces: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Faces that use any of the given undirected edges."""
+    n = int(max(faces.max(), edges.max())) + 1
+    e = np.sort(edges, axis=1)
+    keys = e[:, 0] * n + e[:, 1]
+    fe = np.sort(np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], axis=1), axis=2)
+    return np.isin(fe[..., 0] * n + fe[..., 1], keys).any(axis=1)
+
+
+class CDTMerger:
+    name = "cdt"
+    description = "Möller–Trumbore cut + constrained Delaunay ring + k-d tree elevation (Zhang et al.)"
+    Params = CDTParams
+
+    def __init__(self, params: CDTParams | None = None) -> None:
+        self.params = params or CDTParams()
+
+    def merge(self, segment: RoadSegment, placements: list[Placement], surface: SurfaceModel,
+              rules: ComposeRules) -> MergedSegment:
+        h = rules.road_edge_m
+        v2, faces, border = segment_base_mesh(segment, h)
+        if not placements:
+            z = surface.height(v2)
+            return MergedSegment(segment.id, np.column_stack([v2, z]), faces,
+                                 np.full(len(faces), -1, dtype=np.int64))
+        poly = segment.polygon()
+        clipped = [clip_defect(p, poly, v2, border, f"defect {p.instance_id!r} on segment {segment.id!r}")
+                   for p in placements]
+        owners = [i for i, pc in enumerate(clipped) if pc is not None]
+        pieces = [clipped[i] for i in owners]
+        if not pieces:
+            return self.merge(segment, [], surface, rules)
+        margin = self.params.ring_margin_m or 1.2 * h
+        removed = covered_triangles(v2, faces, [pc.region for pc in pieces], margin, h)
+        strict = True
+        for _ in range(10):
+            try:
+                return self._assemble(segment, v2, faces, removed, pieces, owners, surface, strict)
+            except _SeamBroken:
+                margin *= 2.0
+                removed = covered_triangles(v2, faces, [pc.region for pc in pieces], margin, h)
+            except _LowQuality as low:
+                # A rim edge too long for its neighbourhood: cut the road triangle behind it too.
+                grow = _faces_on_edges(faces, low.rim_edges) & ~removed
+                if not grow.any():
+                    # Only the segment's own border is left behind the skinny triangles; it may not
+                    # move, so keep the best triangulation Triangle found there.
+                    strict = False
+                removed |= grow
+        raise RoadtwinError(f"segment {segment.id!r}: could not merge its defects (footprints too close to each other?)")
+
+    def _assemble(self, segment, v2, faces, removed, pieces: list[DefectPiece], owners: list[int],
+                  surface, strict: bool = True) -> MergedSegment:
+        # Global vertex table: road vertices first, then defect piece vertices (reusing any road
+        # vertex a clipped piece shares bit-for-bit, e.g. a border vertex inside the footprint).
+        xy = [v2]
+        rel = [np.zeros(len(v2))]
+        key_to_id = {(float(x), float(y)): i for i, (x, y) in enumerate(v2)}
+        n = len(v2)
+        piece_ids: list[np.ndarray] = []
+        for pc in pieces:
+            ids = np.empty(len(pc.vertices), dtype=np.int64)
+            new_xy, new_rel = [], []
+            for k, (x, y, z) in enumerate(pc.vertices):
+                key = (float(x), float(y))
+                if key in key_to_id:
+                    ids[k] = key_to_id[key]
+                    if ids[k] < len(v2):
+                        rel[0][ids[k]] = z
+                else:
+                    key_to_id[key] = n
+                    ids[k] = n
+                    n += 1
+                    new_xy.append((x, y))
+                    new_rel.append(z)
+            piece_ids.append(ids)
+            if new_xy:
+                xy.append(np.array(new_xy))
+                rel.append(np.array(new_rel))
+        all_xy = np.concatenate(xy)
+        all_rel = np.concatenate(rel)
+
+        ring_faces, steiner = ring_cdt(all_xy, faces[removed], pieces, piece_ids, self.params.min_angle_deg,
+                                       segment.id)
+        if len(steiner):
+            all_xy = np.concatenate([all_xy, steiner])
+            all_rel = np.concatenate([all_rel, np.zeros(len(steiner))])
+
+        angles = triangle_min_angles(all_xy, ring_faces)
+        bad = angles < self.params.min_angle_deg - 0.5
+        if strict and bad.any():
+            rim = {tuple(sorted(e)) for e in boundary_edges(faces[removed]).tolist()}
+            edges = np.sort(np.concatenate([ring_faces[bad][:, [0, 1]], ring_faces[bad][:, [1, 2]],
+                                            ring_faces[bad][:, [2, 0]]]), axis=1)
+            on_rim = np.array([tuple(e) in rim for e in edges.tolist()])
+            if on_rim.any():
+                raise _LowQuality(edges[on_rim])
+
+        kept = faces[~removed]
+        parts = [kept, ring_faces] + [ids[pc.faces] for pc, ids in zip(pieces, piece_ids)]
+        owners = [np.full(len(kept), -1), np.full(len(ring_faces), -1)] + [
+            np.full(len(pc.faces), owners[i]) for i, pc in enumerate(pieces)]
+        all_faces = np.concatenate(parts).astype(np.int64)
+        owner = np.concatenate(owners).astype(np.int64)
+        ring_index = np.arange(len(kept), len(kept) + len(ring_faces), dtype=np.int64)
+
+        used, inverse = np.unique(all_faces, return_inverse=True)
+        all_faces = inverse.reshape(-1, 3).astype(np.int64)
+        xy_used = all_xy[used]
+        z = surface.height(xy_used) + all_rel[used]
+        return MergedSegment(segment.id, np.column_stack([xy_used, z]), all_faces, owner, ring_index)
+
+
+def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: float, h: float) -> np.ndarray:
+    """Triangles within ``margin`` of any defect region: vertices inside the grown region, or hit
+    by vertical rays cast from the grown region's rim and the footprint's vertices."""
+    tri = np.zeros((len(faces), 3, 3))
+    tri[:, :, :2] = v2[faces]
+    tmin = tri[:, :, :2].min(axis=1)
+    tmax = tri[:, :, :2].max(axis=1)
+    grown = [r.buffer(margin, quad_segs=4) for r in regions]
+    inside = shapely.contains_xy(shapely.union_all(grown), v2[:, 0], v2[:, 1])
+    removed = inside[faces].any(axis=1)
+    step = max(min(margin, h) / 2.0, 1e-3)
+    for region, g in zip(regions, grown):
+        x0, y0, x1, y1 = g.bounds
+        cand = np.flatnonzero((tmax[:, 0] >= x0) & (tmin[:, 0] <= x1) & (tmax[:, 1] >= y0) & (tmin[:, 1] <= y1))
+        if len(cand) == 0:
+            continue
+        rims = [np.asarray(shapely.segmentize(g.exterior, step).coords)]
+        rims += [np.asarray(geom.exterior.coords) for geom in getattr(region, "geoms", [region])]
+        origins = np.concatenate(rims)[:, :2]
+        for start in range(0, len(origins), 256):
+            hits = vertical_ray_hits(origins[start:start + 256], tri[cand])
+            removed[cand[hits.any(axis=0)]] = True
+    return removed
+
+
+def ring_cdt(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectPiece],
+             piece_ids: list[np.ndarray], min_angle: float, segment_id: str) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained Delaunay fill of (cut region) minus (defect pieces). Returns faces (global ids)
+    and the Steiner points Triangle added inside the ring (never on its rim)."""
+    rim = boundary_edges(removed_faces)
+    loop_edges = [np.column_stack([ids[l], ids[np.roll(l, -1)]]) for pc, ids in zip(pieces, piece_ids)
+                  for l in pc.loops]
+    loop_edges = np.concatenate(loop_edges) if loop_edges else np.zeros((0, 2), dtype=np.int64)
+    rim = _split_at_points(rim, all_xy, np.unique(loop_edges))
+    edges = np.concatenate([rim, loop_edges])
+    key = np.unique(np.sort(edges, axis=1), axis=0)
+    key = key[key[:, 0] != key[:, 1]]
+    ids = np.unique(key)
+    local = np.full(int(ids.max()) + 1, -1, dtype=np.int64)
+    local[ids] = np.arange(len(ids))
+    holes = [pc.seed for pc in pieces] + [s for pc in pieces for s in pc.extra_seeds]
+    holes += _island_seeds(all_xy, removed_faces)
+    tri_in = {"vertices": all_xy[ids], "segments": local[key]}
+    if holes:
+        tri_in["holes"] = np.array(holes)
+    out = triangle.triangulate(tri_in, f"pq{min_angle}YY")
+    out_v = out["vertices"]
+    out_segs = np.sort(out.get("segments", np.zeros((0, 2), dtype=np.int64)), axis=1)
+    # Triangle only adds a vertex on a segment where two segments cross: a loop crossing the rim.
+    if (out_segs >= len(ids)).any() or not np.array_equal(out_v[: len(ids)], all_xy[ids]):
+        raise _SeamBroken(segment_id)
+    tris = out["triangles"].astype(np.int64)
+    n_in = len(ids)
+    glob = np.concatenate([ids, len(all_xy) + np.arange(len(out_v) - n_in)])
+    return glob[tris], out_v[n_in:]
+
+
+def _split_at_points(edges: np.ndarray, xy: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Split rim edges at loop vertices lying on them (clipped defects meet the segment border)."""
+    if len(candidates) == 0 or len(edges) == 0:
+        return edges
+    a, b = xy[edges[:, 0]], xy[edges[:, 1]]
+    p = xy[candidates]
+    d = b - a
+    L2 = (d * d).sum(1)
+    t = ((p[:, None, :] - a[None]) * d[None]).sum(-1) / L2[None]
+    foot = a[None] + t[..., None] * d[None]
+    dist = np.linalg.norm(p[:, None, :] - foot, axis=-1)
+    scale = np.sqrt(L2)[None]
+    on = (dist <= 1e-9 * np.maximum(scale, 1.0)) & (t > 1e-12) & (t < 1 - 1e-12)
+    on &= (candidates[:, None] != edges[None, :, 0]) & (candidates[:, None] != edges[None, :, 1])
+    if not on.any():
+        return edges
+    out = []
+    for e in range(len(edges)):
+        hit = np.flatnonzero(on[:, e])
+        if len(hit) == 0:
+            out.append(edges[e][None])
+            continue
+        order = hit[np.argsort(t[hit, e])]
+        chain = np.concatenate([[edges[e, 0]], candidates[order], [edges[e, 1]]])
+        out.append(np.column_stack([chain[:-1], chain[1:]]))
+    return np.concatenate(out)
+
+
+def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float, float]]:
+    """A point inside every kept-road island enclosed by the cut, so Triangle leaves it alone."""
+    union = shapely.union_all(shapely.polygons(xy[removed_faces]))
+    seeds = []
+    for poly in getattr(union, "geoms", [union]):
+        for ring in poly.interiors:
+            rp = Polygon(ring).representative_point()
+            seeds.append((rp.x, rp.y))
+    return seeds
+
+
+__all__ = ["CDTMerger", "CDTParams", "covered_triangles", "ring_cdt"]

@@ -1,0 +1,22 @@
+"""Built-in parametric defect types: pothole, depression, bump, rut, manhole, crack.
+
+Why a plugin: the built-ins register exactly as a third-party defect type would (entry point
+``defects = "roadtwin_defects"`` in group ``roadtwin``), using only roadtwin_core's public API.
+Each type is one small module; ``_mesh`` holds the shared footprint + height -> mesh recipe.
+"""
+from roadtwin_core import hookimpl
+
+from .bump import Bump
+from .crack import Crack
+from .depression import Depression
+from .manhole import Manhole
+from .pothole import Pothole
+from .rut import Rut
+
+__all__ = ["Bump", "Crack", "Depression", "Manhole", "Pothole", "Rut"]
+
+
+@hookimpl
+def roadtwin_register_defect_types(register):
+    for thing in (Pothole(), Depression(), Bump(), Rut(), Manhole(), Crack()):
+        register(thing)

@@ -1,0 +1,116 @@
+"""Crack: a narrow shallow V-groove network grown as a seeded branching random walk.
+
+Why this shape: surface cracks in asphalt are thin (1-3 cm opened up), shallow (0.5-2 cm),
+meandering and branching. A trunk random walk (heading mean-reverting, so it does not curl up)
+sprouts side branches at 40-80 deg. The network is a tree: every new step must keep a clearance
+of 1.5 groove widths from everything already drawn (a step that would not simply ends that
+branch), so the buffered footprint is always ONE polygon without holes — an enclosed road
+island would need a footprint with a hole, which the merger contract forbids. Cross-section is a
+V: depth falls linearly from ``depth_m`` on a centreline to 0 at half the width. Centrelines are
+kept as triangle edges, so the groove bottom is sharp with very few triangles.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely import affinity
+from shapely.geometry import LineString, MultiLineString, Polygon
+
+from roadtwin_core import DefectModel, RoadtwinError, check_params, field
+
+from ._mesh import build_defect, densify_closed, densify_open
+
+
+class Crack:
+    name = "crack"
+    description = "Branching hairline-to-open crack network: narrow shallow V-groove tree."
+
+    @dataclass
+    class Params:
+        extent_m: float = field(1.0, lo=0.05, hi=10.0, doc="length of the trunk (overall extent)")
+        width_m: float = field(0.02, lo=0.002, hi=0.1, doc="groove width at the road surface")
+        depth_m: float = field(0.01, lo=0.0005, hi=0.1, doc="groove depth on the centreline")
+        branches: int = field(3, lo=0, hi=20, doc="number of side branches to try growing")
+        tortuosity: float = field(0.25, lo=0.0, hi=1.5, doc="std of the heading change per step (rad)")
+
+    def sample_params(self, rng: np.random.Generator) -> "Crack.Params":
+        return self.Params(extent_m=rng.uniform(0.5, 2.0), width_m=rng.uniform(0.01, 0.03),
+                           depth_m=rng.uniform(0.005, 0.02), branches=int(rng.integers(0, 5)),
+                           tortuosity=rng.uniform(0.15, 0.4))
+
+    def generate(self, params: "Crack.Params", rng: np.random.Generator, name: str) -> DefectModel:
+        owner = f"defect type {self.name}"
+        p = check_params(params, owner)
+        if p.depth_m > 0 and p.width_m > p.extent_m / 2:
+            raise RoadtwinError(f"{owner}: parameter width_m ({p.width_m}) must be <= extent_m / 2")
+        w, D = p.width_m, p.depth_m
+        step = max(3.0 * w, p.extent_m / 25)
+        clearance = 1.5 * w
+        lines = _grow_tree(rng, p.extent_m, step, clearance, p.branches, p.tortuosity)
+        net = MultiLineString([LineString(c) for c in lines])
+
+        foot = net.buffer(w / 2, quad_segs=3).simplify(0.1 * w)
+        if not isinstance(foot, Polygon) or len(foot.interiors) or not foot.is_valid:
+            raise RoadtwinError(f"{owner}: crack network did not buffer to one simple polygon (internal error)")
+        spacing = float(np.clip(2.0 * w, 0.01, 0.04))
+        loop = densify_closed(np.asarray(foot.exterior.coords)[:-1], spacing)
+        # Centre the local frame on the footprint.
+        centre = np.asarray(foot.centroid.coords[0])
+        loop = loop - centre
+        centrelines = [(densify_open(c - centre, spacing), False) for c in lines]
+        net = affinity.translate(net, -centre[0], -centre[1])
+
+        def height(xy: np.ndarray) -> np.ndarray:
+            d = shapely.distance(net, shapely.points(xy))
+            return -D * np.clip(1.0 - d / (w / 2), 0.0, 1.0)
+
+        return build_defect(name=name, defect_type=self.name, params=p, loop=loop, height=height,
+                            extra_lines=centrelines, min_angle=None, margin=0.0)
+
+
+def _grow_tree(rng: np.random.Generator, extent: float, step: float, clearance: float,
+               branches: int, tortuosity: float) -> list[np.ndarray]:
+    """Trunk + side branches as polylines; no two come closer than ``clearance`` (a tree)."""
+    heading0 = rng.uniform(0.0, np.pi)
+    lines: list[list[np.ndarray]] = []
+
+    def walk(start: np.ndarray, heading: float, n_steps: int, parent: int | None, at: int) -> None:
+        pts = [start]
+        mean = heading
+        for i in range(n_steps):
+            heading = mean + 0.7 * (heading - mean) + rng.normal(0.0, tortuosity)
+            q = pts[-1] + step * np.array([np.cos(heading), np.sin(heading)])
+            seg = LineString([pts[-1], q])
+            others = [LineString(c) for c in lines if len(c) > 1]
+            if parent is not None and i == 0:  # the segments touching the attachment point
+                c = lines[parent]
+                others[parent] = LineString(c[:max(at - 1, 0) + 1]) if at >= 2 else None
+                tail = c[at + 1:]
+                if len(tail) >= 2:
+                    others.append(LineString(tail))
+            if len(pts) >= 3:
+                others.append(LineString(pts[:-1]))
+            others = [g for g in others if g is not None and not g.is_empty and g.length > 0]
+            if others and seg.distance(MultiLineString(others)) < clearance:
+                break
+            pts.append(q)
+        if len(pts) >= 2:
+            lines.append(pts)
+
+    n_trunk = max(2, int(round(extent / step)))
+    trunk_start = -0.5 * extent * np.array([np.cos(heading0), np.sin(heading0)])
+    walk(trunk_start, heading0, n_trunk, None, 0)
+    for _ in range(branches):
+        parent = int(rng.integers(0, len(lines)))
+        c = lines[parent]
+        if len(c) < 3:
+            continue
+        at = int(rng.integers(1, len(c) - 1))
+        d = c[at + 1] - c[at - 1]
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        heading = np.arctan2(d[1], d[0]) + side * np.deg2rad(rng.uniform(40.0, 80.0))
+        n_steps = max(2, int(round(extent * rng.uniform(0.2, 0.5) / step)))
+        walk(c[at], heading, n_steps, parent, at)
+    return [np.asarray(c) for c in lines]

@@ -1,0 +1,144 @@
+"""The ``roadtwin`` command line (typer + rich). Bad input: one line on stderr, exit code 2."""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from .errors import RoadtwinError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="roadtwin: simulation-ready digital twins of roads with their defects, as OpenUSD.")
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _fail(message: str, code: int = 2) -> None:
+    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+@app.command()
+def plugins() -> None:
+    """List every plugin, its version, what it registered and any load error."""
+    from .plugins import get_plugin_manager
+
+    info = get_plugin_manager().load_all()
+    table = Table(title="roadtwin plugins")
+    for col in ("plugin", "version", "registered", "error"):
+        table.add_column(col)
+    for name in sorted(info):
+        i = info[name]
+        reg = "\n".join(f"{kind}: {', '.join(names)}" for kind, names in sorted(i.registered.items()))
+        table.add_row(name, i.version, reg or "-", f"[red]{i.error}[/]" if i.error else "")
+    console.print(table)
+
+
+@app.command()
+def compose(
+    layout: Path = typer.Argument(..., help="town layout (USD) with road segments and rules"),
+    out: Path = typer.Option(..., "-o", "--out", help="output directory (replaced atomically)"),
+    defects: Optional[int] = typer.Option(None, "--defects", help="number of defect instances"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="random seed (same seed, same bytes)"),
+    merger: Optional[str] = typer.Option(None, "--merger", help="merger plugin name (cdt, ...)"),
+    surface: Optional[str] = typer.Option(None, "--surface", help="flat | flat:Z | iso8608:CLASS[:DX]"),
+    preview: bool = typer.Option(True, help="write preview.png"),
+) -> None:
+    """Place defects on a layout, merge them into the road meshes and write a town stage."""
+    from .compose import compose as run_compose
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console, transient=True) as bar:
+        tasks: dict[str, int] = {}
+
+        def report(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(f"{stage} segments" if stage == "merge" else stage, total=total)
+            bar.update(tasks[stage], completed=done)
+
+        result = run_compose(layout, out, defects=defects, seed=seed, merger=merger, surface=surface,
+                             progress=report, preview=preview)
+    s = result.summary
+    table = Table(title=f"composed {result.town}")
+    table.add_column("item")
+    table.add_column("value", justify="right")
+    rows = [("segments", s["segments"]), ("defects", s["defects"]),
+            *((f"  {t}", n) for t, n in s["defects_by_type"].items()),
+            ("straddling defects", s["straddling_defects"]), ("triangles", s["triangles"]),
+            ("road area (m²)", f"{s['road_area_m2']:.1f}"), ("defect area (m²)", f"{s['defect_area_m2']:.2f}"),
+            ("defect volume (m³)", f"{s['defect_volume_m3']:.4f}"),
+            ("validation errors", s["validation"]["errors"]),
+            ("time (s)", " / ".join(f"{k[:-2]} {v:.2f}" for k, v in s["timings_s"].items()))]
+    for k, v in rows:
+        table.add_row(k, str(v))
+    console.print(table)
+
+
+@app.command()
+def validate(stage: Path = typer.Argument(..., help="USD stage to check")) -> None:
+    """Run pxr.UsdValidation on a stage and print the findings; exit 1 on errors."""
+    from .usd.validate import validate_stage
+
+    findings = validate_stage(stage)
+    for f in findings:
+        console.print(f"{f.severity}: {f.validator}: {f.message} {' '.join(f.sites)}", highlight=False)
+    errors = sum(f.severity == "Error" for f in findings)
+    console.print(f"{stage}: {errors} error(s), {len(findings) - errors} other finding(s)")
+    if errors:
+        raise typer.Exit(1)
+
+
+@app.command()
+def export(
+    stage: Path = typer.Argument(..., help="composed town stage (town.usda)"),
+    format: str = typer.Option(..., "--format", "-f", help="exporter name: usdz, glb, obj, ply, ..."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="output file (default: beside the stage)"),
+) -> None:
+    """Export a composed stage to another tool's format, keeping road and defects apart."""
+    from .plugins import get_plugin_manager
+
+    exporter = get_plugin_manager().get("exporters", format)
+    if not stage.exists():
+        raise RoadtwinError(f"{stage}: no such file")
+    target = out or stage.with_suffix(exporter.suffix)
+    path = exporter.export(stage, target)
+    console.print(f"wrote {path}")
+
+
+def main() -> None:
+    try:
+        rc = app(standalone_mode=False)
+        if isinstance(rc, int) and rc:
+            sys.exit(rc)
+    except RoadtwinError as exc:
+        _safe_fail(str(exc))
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except (typer.Abort, KeyboardInterrupt):
+        _safe_fail("aborted", 130)
+    except Exception as exc:  # click usage errors and the like
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        if os.environ.get("ROADTWIN_DEBUG"):
+            raise
+        _safe_fail(f"internal error: {type(exc).__name__}: {exc} (set ROADTWIN_DEBUG=1 for a traceback)", 1)
+
+
+def _safe_fail(message: str, code: int = 2) -> None:
+    try:
+        _fail(message, code)
+    except typer.Exit:
+        sys.exit(code)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,136 @@
+"""The composer: layout + defect library + rules -> a town stage (DESIGN.md data flow)."""
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .atomic import atomic_output_dir
+from .errors import RoadtwinError
+from .model import ComposeRules, DefectModel, Placement, TownLayout
+from .placement import place_defects
+from .plugins import PluginManager, get_plugin_manager
+from .surface import parse_surface
+from .usd.layout_io import read_layout
+from .usd.library import write_defect_asset
+from .usd.town import TownParts, write_town
+from .usd.validate import validate_stage
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass
+class ComposeResult:
+    outdir: Path
+    town: Path
+    summary: dict
+
+
+def build_library(rules: ComposeRules, pm: PluginManager) -> dict[str, list[DefectModel]]:
+    """``models_per_type`` seeded models per weighted type (the paper draws 1,000 instances from
+    53 models); each model's randomness depends only on (seed, type, index)."""
+    library: dict[str, list[DefectModel]] = {}
+    for t in sorted(rules.type_weights):
+        if rules.type_weights[t] <= 0:
+            continue
+        dtype = pm.get("defect_types", t)
+        models = []
+        for k in range(rules.models_per_type):
+            rng = np.random.default_rng([rules.seed, sum(map(ord, t)), k])
+            params = dtype.sample_params(rng)
+            models.append(dtype.generate(params, rng, f"{t}_{k:02d}"))
+        library[t] = models
+    return library
+
+
+def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None = None, seed: int | None = None,
+            merger: str | None = None, surface: str | None = None, progress: Progress | None = None,
+            pm: PluginManager | None = None, preview: bool = True) -> ComposeResult:
+    t0 = time.perf_counter()
+    layout_path = Path(layout_path)
+    layout = read_layout(layout_path)
+    rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface).check(
+        f"{layout_path}")
+    layout.rules = rules
+    pm = pm or get_plugin_manager()
+    merger_impl = pm.get("mergers", rules.merger)
+    report = progress or (lambda *_: None)
+
+    library = build_library(rules, pm) if rules.defect_count else {}
+    rng = np.random.default_rng(rules.seed)
+    placements = place_defects(layout.segments, library, rules, rng, str(layout_path))
+    t_place = time.perf_counter()
+
+    bounds = _bounds(layout, pad=2.0)
+    surf = parse_surface(rules.surface, bounds, rules.seed, layout.terrain)
+    by_segment: dict[str, list[int]] = {}
+    for i, p in enumerate(placements):
+        for sid in p.segment_ids:
+            by_segment.setdefault(sid, []).append(i)
+    merged, owners = [], []
+    for k, seg in enumerate(layout.segments):
+        idx = by_segment.get(seg.id, [])
+        merged.append(merger_impl.merge(seg, [placements[i] for i in idx], surf, rules))
+        owners.append(idx)
+        report("merge", k + 1, len(layout.segments))
+    t_merge = time.perf_counter()
+
+    with atomic_output_dir(outdir) as tmp:
+        (tmp / "layout").mkdir()
+        shutil.copyfile(layout_path, tmp / "layout" / layout_path.name)
+        (tmp / "library").mkdir()
+        library_files = {}
+        for models in library.values():
+            for m in models:
+                write_defect_asset(m, tmp / "library" / f"{m.name}.usda")
+                library_files[m.name] = f"./library/{m.name}.usda"
+        info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
+                "merger": rules.merger, "defectCount": len(placements)}
+        town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
+                                         library_files, info))
+        report("write", 1, 1)
+        findings = validate_stage(town)
+        errors = [f for f in findings if f.severity == "Error"]
+        if errors:
+            raise RoadtwinError(f"composed stage fails validation: {errors[0].validator}: {errors[0].message}")
+        t_write = time.perf_counter()
+        summary = _summary(layout, placements, merged, rules, findings,
+                           {"place_s": t_place - t0, "merge_s": t_merge - t_place, "write_s": t_write - t_merge})
+        if preview:
+            from .preview import write_preview
+
+            write_preview(tmp / "preview.png", layout, merged, owners, placements)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    outdir = Path(outdir).resolve()
+    return ComposeResult(outdir, outdir / "town.usda", summary)
+
+
+def _bounds(layout: TownLayout, pad: float) -> tuple[float, float, float, float]:
+    pts = np.concatenate([s.vertices[:, :2] for s in layout.segments])
+    lo, hi = pts.min(axis=0) - pad, pts.max(axis=0) + pad
+    return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+
+def _summary(layout, placements: list[Placement], merged, rules, findings, timings) -> dict:
+    kinds = Counter(s.kind for s in layout.segments)
+    types = Counter(p.model.defect_type for p in placements)
+    attrs = [p.attributes() for p in placements]
+    return {
+        "layout": layout.source, "seed": rules.seed, "surface": rules.surface, "merger": rules.merger,
+        "segments": len(layout.segments), "segments_by_kind": dict(sorted(kinds.items())),
+        "defects": len(placements), "defects_by_type": dict(sorted(types.items())),
+        "straddling_defects": sum(1 for p in placements if len(p.segment_ids) > 1),
+        "road_area_m2": float(sum(s.polygon().area for s in layout.segments)),
+        "defect_area_m2": float(sum(a["areaM2"] for a in attrs)),
+        "defect_volume_m3": float(sum(a["volumeM3"] for a in attrs)),
+        "triangles": int(sum(len(m.faces) for m in merged)),
+        "validation": {"errors": sum(f.severity == "Error" for f in findings),
+                       "warnings": sum(f.severity == "Warn" for f in findings)},
+        "timings_s": {k: round(v, 3) for k, v in timings.items()},
+    }

@@ -1,0 +1,118 @@
+"""Planar mesh geometry shared by the core and plugins (numpy in, numpy out)."""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from .errors import RoadtwinError
+
+
+def boundary_edges(faces: np.ndarray) -> np.ndarray:
+    """Directed edges used by exactly one face (the mesh outline, holes included)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = np.sort(e, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return e[counts[inv.ravel()] == 1]
+
+
+def edge_face_counts(faces: np.ndarray) -> np.ndarray:
+    """How many faces use each undirected edge (2 inside a manifold surface, 1 on its border)."""
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return counts
+
+
+def mesh_outline_polygon(vertices: np.ndarray, faces: np.ndarray, what: str) -> Polygon:
+    """Union of the mesh's triangles as one valid polygon; refuses degenerate/self-overlapping meshes."""
+    tris = vertices[faces][:, :, :2]
+    area2 = ((tris[:, 1, 0] - tris[:, 0, 0]) * (tris[:, 2, 1] - tris[:, 0, 1])
+             - (tris[:, 1, 1] - tris[:, 0, 1]) * (tris[:, 2, 0] - tris[:, 0, 0]))
+    if not (np.abs(area2) > 1e-12).all():
+        raise RoadtwinError(f"{what}: has degenerate (zero-area) triangles")
+    polys = shapely.polygons(tris)
+    union = shapely.union_all(polys)
+    total = float(np.abs(area2).sum() / 2)
+    if abs(union.area - total) > 1e-6 * max(total, 1.0):
+        raise RoadtwinError(f"{what}: triangles overlap (self-intersecting segment)")
+    if union.geom_type != "Polygon":
+        raise RoadtwinError(f"{what}: is not one connected polygon")
+    return union
+
+
+def polygon_loops(poly: Polygon) -> list[np.ndarray]:
+    """Exterior and interior rings of a polygon as (K,2) arrays without the closing point."""
+    rings = [poly.exterior, *poly.interiors]
+    return [np.asarray(r.coords)[:-1, :2] for r in rings]
+
+
+def subdivide_edge(a: np.ndarray, b: np.ndarray, spacing: float) -> np.ndarray:
+    """Points strictly between a and b, evenly spaced.
+
+    Computed from the endpoints in a canonical (sorted) order so two segments sharing this
+    edge get bit-identical points and stay watertight along their border.
+    """
+    n = int(np.ceil(np.hypot(*(b - a)) / spacing))
+    if n <= 1:
+        return np.zeros((0, 2))
+    flip = (b[0], b[1]) < (a[0], a[1])
+    p, q = (b, a) if flip else (a, b)
+    t = np.arange(1, n) / n
+    pts = p[None, :] + t[:, None] * (q - p)[None, :]
+    return pts[::-1] if flip else pts
+
+
+def vertical_ray_hits(origins_xy: np.ndarray, tri: np.ndarray, eps: float = 1e-12) -> np.ndarray:
+    """Möller–Trumbore for vertical rays: which triangles each downward ray hits.
+
+    ``origins_xy`` (P,2) start far above the mesh and point along -Z; ``tri`` is (T,3,3).
+    Returns a (P,T) boolean matrix. Vectorised over all pairs (callers chunk large inputs).
+    """
+    d = np.array([0.0, 0.0, -1.0])
+    v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
+    e1, e2 = v1 - v0, v2 - v0
+    pvec = np.cross(d, e2)  # (T,3)
+    det = (e1 * pvec).sum(-1)  # (T,)
+    ok = np.abs(det) > eps
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    top = max(float(tri[..., 2].max()), 0.0) + 1.0
+    o = np.column_stack([origins_xy, np.full(len(origins_xy), top)])
+    tvec = o[:, None, :] - v0[None]  # (P,T,3)
+    u = (tvec * pvec[None]).sum(-1) * inv[None]
+    qvec = np.cross(tvec, e1[None])
+    v = (qvec * d).sum(-1) * inv[None]
+    t = (qvec * e2[None]).sum(-1) * inv[None]
+    tol = 1e-12
+    return ok[None] & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= 0)
+
+
+def triangle_min_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Smallest interior angle (degrees, in XY) of each triangle."""
+    p = vertices[faces][:, :, :2]
+    angles = []
+    for i in range(3):
+        a = p[:, (i + 1) % 3] - p[:, i]
+        b = p[:, (i + 2) % 3] - p[:, i]
+        cos = (a * b).sum(-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+        angles.append(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+    return np.min(angles, axis=0)
+
+
+def loops_from_edges(edges: np.ndarray) -> list[np.ndarray]:
+    """Chain directed boundary edges into closed vertex loops."""
+    nxt = {int(a): int(b) for a, b in edges}
+    loops, seen = [], set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = nxt.get(v, start)
+        loops.append(np.array(loop, dtype=np.int64))
+    return loops
+
+
+__all__ = ["boundary_edges", "edge_face_counts", "mesh_outline_polygon", "polygon_loops",
+           "subdivide_edge", "vertical_ray_hits", "triangle_min_angles", "loops_from_edges"]

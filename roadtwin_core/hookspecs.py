@@ -1,0 +1,80 @@
+"""The plugin contract. Every hook receives a ``register`` callback.
+
+A plugin implements any of these with ``@roadtwin_core.hookimpl`` and calls ``register(thing)``
+once per thing it provides. A *thing* is a small object (usually a class instance) with a
+``name`` (unique within its kind), a one-line ``description`` and, where it takes options, a
+``Params`` dataclass built with :func:`roadtwin_core.params.field` so the CLI, the layout file
+and ``roadtwin plugins`` can all read and validate them. Registering two things with the same
+name is an error that names both plugins.
+"""
+import pluggy
+
+hookspec = pluggy.HookspecMarker("roadtwin")
+
+
+@hookspec
+def roadtwin_register_defect_types(register):
+    """Parametric defect generators (pothole, crack, ...).
+
+    Each registered object has ``name``, ``description``, ``Params`` (dataclass),
+    ``sample_params(rng) -> Params`` (a plausible random instance) and
+    ``generate(params, rng, name) -> DefectModel``. Same params and rng state give the same model.
+    """
+
+
+@hookspec
+def roadtwin_register_reconstructors(register):
+    """Sensor data -> SurfaceModel or DefectModel (LiDAR surfaces, stereo defects).
+
+    Each has ``name``, ``description``, ``produces`` ("surface" or "defects") and
+    ``reconstruct(inputs, params) -> list`` of models.
+    """
+
+
+@hookspec
+def roadtwin_register_mergers(register):
+    """Merge placed defects into one road segment mesh and restore elevation.
+
+    Each has ``name``, ``description`` and
+    ``merge(segment, placements, surface, rules) -> MergedSegment``.
+    """
+
+
+@hookspec
+def roadtwin_register_layout_importers(register):
+    """Foreign road networks (e.g. OpenDRIVE) -> TownLayout.
+
+    Each has ``name``, ``suffixes`` (e.g. (".xodr",)) and ``load(path, params) -> TownLayout``.
+    """
+
+
+@hookspec
+def roadtwin_register_renderers(register):
+    """Town stage -> frames (rgb, semantic, instance, depth, normal, disparity, events).
+
+    Each has ``name``, ``description`` and ``render(scene, cameras, params) -> frames``.
+    """
+
+
+@hookspec
+def roadtwin_register_physics_backends(register):
+    """Vehicles driving over the baked road collision mesh -> IMU traces.
+
+    Each has ``name``, ``description`` and ``simulate(road_mesh, vehicles, params) -> traces``.
+    """
+
+
+@hookspec
+def roadtwin_register_planners(register):
+    """Grid maps of a town -> paths with wheel-level or body-level collision.
+
+    Each has ``name``, ``description`` and ``plan(grid, start, goal, params) -> path``.
+    """
+
+
+@hookspec
+def roadtwin_register_exporters(register):
+    """Town stage -> another tool's format (usdz, glb, obj, ply, crg ...).
+
+    Each has ``name`` (the format), ``suffix`` and ``export(stage_path, out_path) -> Path``.
+    """

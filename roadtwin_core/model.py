@@ -1,0 +1,274 @@
+"""The data model: plain dataclasses over numpy arrays, no USD.
+
+Conventions: meters, Z up. A road segment is planar in XY (its z is ignored; elevation comes
+from a surface model). A defect model lives in a local frame centred on its footprint; its z is
+*relative to the surrounding road* (negative below), and its boundary loop sits at z = 0: those
+boundary heights are "pseudo-heights" that become the road surface height when merged.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .errors import RoadtwinError
+
+
+def _as_vertices(a: Any, what: str) -> np.ndarray:
+    v = np.ascontiguousarray(a, dtype=np.float64)
+    if v.ndim != 2 or v.shape[1] not in (2, 3):
+        raise RoadtwinError(f"{what}: vertices must be (N,3), got shape {v.shape}")
+    if v.shape[1] == 2:
+        v = np.column_stack([v, np.zeros(len(v))])
+    if not np.isfinite(v).all():
+        raise RoadtwinError(f"{what}: vertices contain NaN or inf")
+    return v
+
+
+def _as_faces(a: Any, n_vertices: int, what: str) -> np.ndarray:
+    f = np.ascontiguousarray(a, dtype=np.int64).reshape(-1, 3)
+    if len(f) and (f.min() < 0 or f.max() >= n_vertices):
+        raise RoadtwinError(f"{what}: face indices out of range 0..{n_vertices - 1}")
+    return f
+
+
+def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Signed XY areas of triangles (positive when counter-clockwise seen from +Z)."""
+    a, b, c = (vertices[faces[:, i], :2] for i in range(3))
+    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+
+
+def polygon_area(loop_xy: np.ndarray) -> float:
+    """Signed shoelace area of a closed loop given without repeating the first point."""
+    x, y = loop_xy[:, 0], loop_xy[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+@dataclass
+class DefectModel:
+    """A 2.5D defect surface in its local frame (see module docstring)."""
+
+    name: str
+    defect_type: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    boundary: np.ndarray
+    pseudo_height: np.ndarray | None = None
+    source: str = "parametric"
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        what = f"defect model {self.name!r}"
+        self.vertices = _as_vertices(self.vertices, what)
+        self.faces = _as_faces(self.faces, len(self.vertices), what)
+        self.boundary = np.ascontiguousarray(self.boundary, dtype=np.int64)
+        if len(self.boundary) < 3:
+            raise RoadtwinError(f"{what}: boundary loop needs at least 3 vertices")
+        if polygon_area(self.vertices[self.boundary, :2]) < 0:
+            self.boundary = self.boundary[::-1].copy()
+        if self.pseudo_height is None:
+            flags = np.zeros(len(self.vertices), dtype=bool)
+            flags[self.boundary] = True
+            self.pseudo_height = flags
+        self.pseudo_height = np.asarray(self.pseudo_height, dtype=bool)
+        self.vertices[self.pseudo_height, 2] = 0.0
+        if len(self.faces) == 0:
+            raise RoadtwinError(f"{what}: has no faces")
+        areas = triangle_areas(self.vertices, self.faces)
+        if (areas <= 0).any():
+            raise RoadtwinError(f"{what}: {int((areas <= 0).sum())} faces are degenerate or folded over in XY")
+
+    @property
+    def footprint(self) -> np.ndarray:
+        """Boundary loop in XY, counter-clockwise."""
+        return self.vertices[self.boundary, :2]
+
+    @property
+    def area_m2(self) -> float:
+        return float(triangle_areas(self.vertices, self.faces).sum())
+
+    @property
+    def signed_volume_m3(self) -> float:
+        """Exact integral of z over the footprint for the piecewise-linear surface."""
+        z = self.vertices[self.faces, 2].mean(axis=1)
+        return float((triangle_areas(self.vertices, self.faces) * z).sum())
+
+    @property
+    def volume_m3(self) -> float:
+        """Volume between the defect surface and the road plane (missing or added material)."""
+        return abs(self.signed_volume_m3)
+
+    @property
+    def depth_m(self) -> float:
+        """Deepest point below the road (0 for a pure bump)."""
+        return float(max(0.0, -self.vertices[:, 2].min()))
+
+    @property
+    def height_m(self) -> float:
+        """Highest point above the road (0 for a pure depression)."""
+        return float(max(0.0, self.vertices[:, 2].max()))
+
+    def attributes(self) -> dict[str, Any]:
+        return {"type": self.defect_type, "depthM": self.depth_m, "heightM": self.height_m,
+                "areaM2": self.area_m2, "volumeM3": self.volume_m3, "source": self.source}
+
+
+@dataclass
+class RoadSegment:
+    """A planar road mesh with a semantic kind (driving, sidewalk, shoulder, junction ...)."""
+
+    id: str
+    kind: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    centerline: np.ndarray | None = None
+    attributes: dict[str, Any] = field(default_factory=dict)
+    prim_path: str = ""
+
+    def __post_init__(self) -> None:
+        what = f"road segment {self.id!r}"
+        self.vertices = _as_vertices(self.vertices, what)
+        self.vertices[:, 2] = 0.0
+        self.faces = _as_faces(self.faces, len(self.vertices), what)
+        if len(self.faces) == 0:
+            raise RoadtwinError(f"{what}: has no faces")
+        if self.centerline is not None:
+            self.centerline = np.asarray(self.centerline, dtype=np.float64).reshape(-1, 2)
+
+    def polygon(self):
+        """The segment's outline as a shapely polygon (non-convex and holes allowed)."""
+        from .geometry import mesh_outline_polygon
+
+        return mesh_outline_polygon(self.vertices, self.faces, f"road segment {self.id!r}")
+
+    def travel_direction(self, xy: np.ndarray) -> np.ndarray:
+        """Unit travel direction at points, from the centerline (or the outline's long axis)."""
+        xy = np.atleast_2d(xy)
+        if self.centerline is not None and len(self.centerline) >= 2:
+            c = self.centerline
+            seg = c[1:] - c[:-1]
+            mid = 0.5 * (c[1:] + c[:-1])
+            idx = np.argmin(((xy[:, None, :] - mid[None]) ** 2).sum(-1), axis=1)
+            d = seg[idx]
+        else:
+            pts = self.vertices[:, :2] - self.vertices[:, :2].mean(0)
+            _, _, vt = np.linalg.svd(pts, full_matrices=False)
+            d = np.repeat(vt[:1], len(xy), axis=0)
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+@dataclass
+class Placement:
+    """One defect instance: which model, where, how big. Segments are filled by placement."""
+
+    instance_id: str
+    model: DefectModel
+    x: float
+    y: float
+    yaw: float
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    segment_ids: tuple[str, ...] = ()
+
+    def transform_xy(self, local_xy: np.ndarray) -> np.ndarray:
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        sx, sy, _ = self.scale
+        x = local_xy[:, 0] * sx
+        y = local_xy[:, 1] * sy
+        return np.column_stack([c * x - s * y + self.x, s * x + c * y + self.y])
+
+    def world_vertices(self) -> np.ndarray:
+        """Vertices with world XY and z still relative to the road surface."""
+        v = self.model.vertices
+        return np.column_stack([self.transform_xy(v[:, :2]), v[:, 2] * self.scale[2]])
+
+    def world_footprint(self) -> np.ndarray:
+        return self.transform_xy(self.model.footprint)
+
+    def attributes(self) -> dict[str, Any]:
+        sx, sy, sz = self.scale
+        m = self.model
+        return {"type": m.defect_type, "depthM": m.depth_m * sz, "heightM": m.height_m * sz,
+                "areaM2": m.area_m2 * sx * sy, "volumeM3": m.volume_m3 * sx * sy * sz,
+                "source": m.source, "model": m.name}
+
+
+@dataclass
+class ComposeRules:
+    """How to populate a layout with defects; stored on the layout's root prim."""
+
+    defect_count: int = 40
+    type_weights: dict[str, float] = field(default_factory=lambda: {
+        "pothole": 4.0, "depression": 1.0, "bump": 0.5, "rut": 1.0, "manhole": 0.5, "crack": 2.0})
+    seed: int = 0
+    surface: str = "flat"
+    merger: str = "cdt"
+    kinds: tuple[str, ...] = ("driving",)
+    models_per_type: int = 4
+    scale_range: tuple[float, float] = (0.8, 1.2)
+    edge_margin_m: float = 0.3
+    spacing_m: float = 0.4
+    road_edge_m: float = 0.5
+
+    def replace(self, **changes: Any) -> "ComposeRules":
+        changes = {k: v for k, v in changes.items() if v is not None}
+        return dataclasses.replace(self, **changes)
+
+    def check(self, owner: str) -> "ComposeRules":
+        import math
+
+        if self.defect_count < 0:
+            raise RoadtwinError(f"{owner}: defect count must be >= 0, got {self.defect_count}")
+        for name in ("edge_margin_m", "spacing_m", "road_edge_m"):
+            v = getattr(self, name)
+            if not math.isfinite(v) or v < 0 or (name == "road_edge_m" and v <= 0):
+                raise RoadtwinError(f"{owner}: rule {name} must be a positive finite number, got {v}")
+        lo, hi = self.scale_range
+        if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+            raise RoadtwinError(f"{owner}: scale range must satisfy 0 < lo <= hi, got {self.scale_range}")
+        for k, w in self.type_weights.items():
+            if not math.isfinite(w) or w < 0:
+                raise RoadtwinError(f"{owner}: weight of defect type {k!r} must be >= 0, got {w}")
+        if self.defect_count and sum(self.type_weights.values()) <= 0:
+            raise RoadtwinError(f"{owner}: all defect type weights are zero")
+        return self
+
+
+@dataclass
+class TownLayout:
+    """Road segments plus the composition rules and where they came from."""
+
+    name: str
+    segments: list[RoadSegment]
+    rules: ComposeRules = field(default_factory=ComposeRules)
+    source: str = ""
+    terrain: np.ndarray | None = None  # optional (N,3) elevation samples in world coordinates
+
+    def segment(self, segment_id: str) -> RoadSegment:
+        for s in self.segments:
+            if s.id == segment_id:
+                return s
+        raise RoadtwinError(f"{self.source or self.name}: no road segment {segment_id!r}")
+
+
+@dataclass
+class MergedSegment:
+    """A merger's output for one segment: one mesh, each face owned by the road or a defect.
+
+    ``face_owner[i] == -1`` marks road faces; otherwise the index into the placements given
+    to the merger. Vertices carry the restored elevation. Road and defect faces share the
+    seam vertices, so splitting by owner never opens a gap.
+    """
+
+    segment_id: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_owner: np.ndarray
+    ring_faces: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def part(self, owner: int) -> tuple[np.ndarray, np.ndarray]:
+        """Compact vertices/faces of the faces owned by ``owner``."""
+        f = self.faces[self.face_owner == owner]
+        used, inverse = np.unique(f, return_inverse=True)
+        return self.vertices[used], inverse.reshape(-1, 3).astype(np.int64)

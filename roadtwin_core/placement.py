@@ -1,0 +1,92 @@
+"""Seeded, lane-aware, non-overlapping defect placement (paper step 1).
+
+Defects go on segments of the allowed kinds (driving lanes by default), uniformly by area; each
+footprint must stay ``edge_margin_m`` inside the allowed road area and ``spacing_m`` away from
+every other defect. Crossing a border *between* allowed segments is fine: the merger clips
+the defect into both. Ruts follow the lane's travel direction; other types get a random yaw.
+"""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+from shapely.strtree import STRtree
+
+from .errors import RoadtwinError
+from .model import ComposeRules, DefectModel, Placement, RoadSegment, triangle_areas
+
+ALONG_TRAVEL = {"rut", "bump"}
+MAX_TRIES = 200
+
+
+def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectModel]], rules: ComposeRules,
+                  rng: np.random.Generator, owner: str) -> list[Placement]:
+    if rules.defect_count == 0:
+        return []
+    allowed = [s for s in segments if s.kind in rules.kinds]
+    if not allowed:
+        raise RoadtwinError(f"{owner}: no road segments of kind {', '.join(rules.kinds)} to place defects on")
+    polys = [s.polygon() for s in allowed]
+    area_ok = shapely.union_all(polys).buffer(-rules.edge_margin_m)
+    shapely.prepare(area_ok)
+    tree = STRtree(polys)
+    # Area-weighted triangle sampling gives uniform positions over the allowed road.
+    tri_seg, tri_pts = [], []
+    for k, s in enumerate(allowed):
+        tri_pts.append(s.vertices[s.faces][:, :, :2])
+        tri_seg.append(np.full(len(s.faces), k))
+    tris = np.concatenate(tri_pts)
+    tseg = np.concatenate(tri_seg)
+    w = np.abs(np.concatenate([triangle_areas(s.vertices, s.faces) for s in allowed]))
+    cdf = np.cumsum(w) / w.sum()
+
+    types = sorted(t for t, wt in rules.type_weights.items() if wt > 0 and library.get(t))
+    if not types:
+        raise RoadtwinError(f"{owner}: no defect models for the weighted types {sorted(rules.type_weights)}")
+    tw = np.array([rules.type_weights[t] for t in types], dtype=np.float64)
+    tw /= tw.sum()
+
+    placed: list[Placement] = []
+    grown: list[Polygon] = []
+    cell = 4.0
+    grid: dict[tuple[int, int], list[int]] = {}
+    for i in range(rules.defect_count):
+        t = types[rng.choice(len(types), p=tw)]
+        model = library[t][rng.integers(len(library[t]))]
+        for _ in range(MAX_TRIES):
+            k = int(np.searchsorted(cdf, rng.random()))
+            a, b, c = tris[k]
+            r1, r2 = rng.random(2)
+            s1 = np.sqrt(r1)
+            xy = (1 - s1) * a + s1 * (1 - r2) * b + s1 * r2 * c
+            seg = allowed[tseg[k]]
+            if t in ALONG_TRAVEL:
+                d = seg.travel_direction(xy)[0]
+                yaw = float(np.arctan2(d[1], d[0]) + rng.normal(0.0, np.radians(3.0)))
+            else:
+                yaw = float(rng.uniform(0, 2 * np.pi))
+            s = float(rng.uniform(*rules.scale_range))
+            p = Placement(f"D{i:05d}", model, float(xy[0]), float(xy[1]), yaw, (s, s, s))
+            fp = Polygon(p.world_footprint())
+            if not fp.is_valid or not area_ok.contains(fp):
+                continue
+            g = fp.buffer(rules.spacing_m / 2, quad_segs=2)
+            x0, y0, x1, y1 = g.bounds
+            keys = [(gx, gy) for gx in range(int(x0 // cell), int(x1 // cell) + 1)
+                    for gy in range(int(y0 // cell), int(y1 // cell) + 1)]
+            near = {j for key in keys for j in grid.get(key, ())}
+            if any(g.intersects(grown[j]) for j in near):
+                continue
+            hit = tree.query(fp, predicate="intersects")
+            ids = tuple(sorted(allowed[j].id for j in hit if polys[j].intersection(fp).area > 1e-9))
+            p.segment_ids = ids
+            for key in keys:
+                grid.setdefault(key, []).append(len(placed))
+            placed.append(p)
+            grown.append(g)
+            break
+        else:
+            raise RoadtwinError(
+                f"{owner}: only {len(placed)} of {rules.defect_count} defects fit on the "
+                f"{', '.join(rules.kinds)} road with spacing {rules.spacing_m} m; ask for fewer defects")
+    return placed

@@ -1,0 +1,155 @@
+"""Town layouts in USD: road segment meshes tagged with ``roadtwin:segment:kind``, composition
+rules on the root prim (``roadtwin:rules:*``) and optional terrain elevation samples."""
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, Vt
+
+from ..errors import RoadtwinError
+from ..model import ComposeRules, RoadSegment, TownLayout
+from .stage import new_stage, read_mesh, set_kind, write_mesh
+
+SEGMENT_KIND = "roadtwin:segment:kind"
+CENTERLINE = "roadtwin:segment:centerline"
+TERRAIN = "roadtwin:terrain"
+RULES = "roadtwin:rules:"
+_RULE_ATTRS = {"defectCount": "defect_count", "seed": "seed", "surface": "surface", "merger": "merger",
+               "modelsPerType": "models_per_type", "edgeMarginM": "edge_margin_m", "spacingM": "spacing_m",
+               "roadEdgeM": "road_edge_m"}
+
+
+def open_layout_stage(path: Path) -> Usd.Stage:
+    """Open and check a layout: exists, is USD, Z up, meters, has a default prim."""
+    if not path.exists():
+        raise RoadtwinError(f"{path}: no such file")
+    if path.is_dir():
+        raise RoadtwinError(f"{path}: is a directory, expected a USD layout file")
+    try:
+        stage = Usd.Stage.Open(str(path))
+    except Exception:
+        stage = None
+    if stage is None:
+        raise RoadtwinError(f"{path}: not a USD file (could not be opened as .usd/.usda/.usdc)")
+    up = UsdGeom.GetStageUpAxis(stage)
+    if up != UsdGeom.Tokens.z:
+        raise RoadtwinError(f"{path}: upAxis is {up}; roadtwin layouts must be Z-up (set upAxis = \"Z\")")
+    mpu = UsdGeom.GetStageMetersPerUnit(stage)
+    if not stage.HasAuthoredMetadata("metersPerUnit") or not math.isclose(mpu, 1.0):
+        raise RoadtwinError(f"{path}: metersPerUnit is {mpu} (not meters); author metersPerUnit = 1")
+    if not stage.GetDefaultPrim():
+        raise RoadtwinError(f"{path}: has no defaultPrim")
+    return stage
+
+
+def read_layout(path: str | Path) -> TownLayout:
+    path = Path(path)
+    stage = open_layout_stage(path)
+    root = stage.GetDefaultPrim()
+    segments: list[RoadSegment] = []
+    terrain = None
+    for prim in Usd.PrimRange(root):
+        if prim.HasAttribute(TERRAIN) and prim.IsA(UsdGeom.Points):
+            terrain = np.asarray(UsdGeom.Points(prim).GetPointsAttr().Get(), dtype=np.float64).reshape(-1, 3)
+            if not np.isfinite(terrain).all():
+                raise RoadtwinError(f"{path}: terrain {prim.GetPath()} has NaN points")
+            continue
+        if not prim.IsA(UsdGeom.Mesh) or not prim.HasAttribute(SEGMENT_KIND):
+            continue
+        what = f"{path}: segment {prim.GetPath()}"
+        pts, faces = read_mesh(UsdGeom.Mesh(prim))
+        if len(pts) < 3 or len(faces) == 0:
+            raise RoadtwinError(f"{what} has no triangles")
+        if not np.isfinite(pts).all():
+            raise RoadtwinError(f"{what} has NaN or inf points")
+        center = prim.GetAttribute(CENTERLINE).Get() if prim.HasAttribute(CENTERLINE) else None
+        attrs = {a.GetName().split(":")[-1]: a.Get() for a in prim.GetAttributes()
+                 if a.GetName().startswith("roadtwin:segment:") and a.GetName() not in (SEGMENT_KIND, CENTERLINE)}
+        try:
+            seg = RoadSegment(prim.GetName(), str(prim.GetAttribute(SEGMENT_KIND).Get()), pts, faces,
+                              None if center is None else np.asarray(center, dtype=np.float64), attrs,
+                              str(prim.GetPath()))
+            seg.polygon()
+        except RoadtwinError as exc:
+            raise RoadtwinError(f"{what}: {str(exc).split(': ', 1)[-1]}") from None
+        segments.append(seg)
+    if not segments:
+        raise RoadtwinError(f"{path}: no road segments (Mesh prims with {SEGMENT_KIND}) under {root.GetPath()}")
+    ids = [s.id for s in segments]
+    if len(set(ids)) != len(ids):
+        raise RoadtwinError(f"{path}: road segment names must be unique")
+    return TownLayout(root.GetName(), segments, read_rules(root, str(path)), str(path), terrain)
+
+
+def read_rules(root: Usd.Prim, owner: str) -> ComposeRules:
+    values = {}
+    weights = {}
+    for attr in root.GetAttributes():
+        name = attr.GetName()
+        if not name.startswith(RULES):
+            continue
+        key = name[len(RULES):]
+        value = attr.Get()
+        if key.startswith("weight:"):
+            weights[key.split(":", 1)[1]] = float(value)
+        elif key == "kinds":
+            values["kinds"] = tuple(str(v) for v in value)
+        elif key in _RULE_ATTRS:
+            values[_RULE_ATTRS[key]] = value
+        else:
+            raise RoadtwinError(f"{owner}: unknown rule attribute {name}")
+    rules = ComposeRules(**values)
+    if weights:
+        rules.type_weights = weights
+    return rules.check(owner)
+
+
+def _safe_name(name: str) -> str:
+    name = re.sub(r"[^A-Za-z0-9_]", "_", name)
+    return name if name and not name[0].isdigit() else f"_{name}"
+
+
+def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
+    """Write a layout file (used by the sample-town generator and importers)."""
+    path = Path(path)
+    stage = new_stage(path, layout.name, doc)
+    root = UsdGeom.Xform.Define(stage, f"/{layout.name}").GetPrim()
+    set_kind(root, "assembly")
+    r = layout.rules
+    root.CreateAttribute(RULES + "defectCount", Sdf.ValueTypeNames.Int, custom=True).Set(r.defect_count)
+    root.CreateAttribute(RULES + "seed", Sdf.ValueTypeNames.Int, custom=True).Set(r.seed)
+    root.CreateAttribute(RULES + "surface", Sdf.ValueTypeNames.String, custom=True).Set(r.surface)
+    root.CreateAttribute(RULES + "merger", Sdf.ValueTypeNames.String, custom=True).Set(r.merger)
+    root.CreateAttribute(RULES + "kinds", Sdf.ValueTypeNames.TokenArray, custom=True).Set(Vt.TokenArray(list(r.kinds)))
+    root.CreateAttribute(RULES + "modelsPerType", Sdf.ValueTypeNames.Int, custom=True).Set(r.models_per_type)
+    for key in ("edgeMarginM", "spacingM", "roadEdgeM"):
+        root.CreateAttribute(RULES + key, Sdf.ValueTypeNames.Double, custom=True).Set(float(getattr(r, _RULE_ATTRS[key])))
+    for t, w in r.type_weights.items():
+        root.CreateAttribute(f"{RULES}weight:{t}", Sdf.ValueTypeNames.Double, custom=True).Set(float(w))
+    roads = UsdGeom.Xform.Define(stage, f"/{layout.name}/Roads").GetPrim()
+    set_kind(roads, "group")
+    for seg in layout.segments:
+        mesh = UsdGeom.Mesh.Define(stage, f"/{layout.name}/Roads/{_safe_name(seg.id)}")
+        write_mesh(mesh, seg.vertices, seg.faces)
+        prim = mesh.GetPrim()
+        set_kind(prim, "component")
+        prim.CreateAttribute(SEGMENT_KIND, Sdf.ValueTypeNames.Token, custom=True).Set(seg.kind)
+        if seg.centerline is not None:
+            prim.CreateAttribute(CENTERLINE, Sdf.ValueTypeNames.Float2Array, custom=True).Set(
+                Vt.Vec2fArray.FromNumpy(np.asarray(seg.centerline, dtype=np.float32)))
+        for k, v in seg.attributes.items():
+            if isinstance(v, str):
+                prim.CreateAttribute(f"roadtwin:segment:{k}", Sdf.ValueTypeNames.String, custom=True).Set(v)
+            elif isinstance(v, (int, np.integer)):
+                prim.CreateAttribute(f"roadtwin:segment:{k}", Sdf.ValueTypeNames.Int, custom=True).Set(int(v))
+    if layout.terrain is not None:
+        pts = UsdGeom.Points.Define(stage, f"/{layout.name}/Terrain")
+        pts.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(layout.terrain, dtype=np.float32)))
+        pts.CreateVisibilityAttr(UsdGeom.Tokens.invisible)
+        pts.GetPrim().CreateAttribute(TERRAIN, Sdf.ValueTypeNames.Bool, custom=True).Set(True)
+        pts.CreateExtentAttr(UsdGeom.Boundable.ComputeExtentFromPlugins(pts, 0))
+    stage.GetRootLayer().Save()
+    return path

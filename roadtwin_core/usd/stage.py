@@ -1,0 +1,85 @@
+"""Small helpers every layer writer uses: metadata, kinds, labels, typed custom attributes."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pxr import Kind, Sdf, Usd, UsdGeom, UsdPhysics, UsdSemantics, Vt
+
+LABEL_TAXONOMY = "class"
+
+
+def new_stage(path: Path, default_prim: str, doc: str = "") -> Usd.Stage:
+    """A new layer with Z up, meters, kilograms and a defaultPrim (which callers then define/over)."""
+    stage = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdPhysics.SetStageKilogramsPerUnit(stage, 1.0)
+    stage.GetRootLayer().defaultPrim = default_prim
+    if doc:
+        stage.GetRootLayer().documentation = doc
+    return stage
+
+
+def set_kind(prim: Usd.Prim, kind: str) -> None:
+    Usd.ModelAPI(prim).SetKind({"assembly": Kind.Tokens.assembly, "group": Kind.Tokens.group,
+                               "component": Kind.Tokens.component}[kind])
+
+
+def apply_labels(prim: Usd.Prim, labels: list[str], taxonomy: str = LABEL_TAXONOMY) -> None:
+    """UsdSemantics.LabelsAPI (Isaac Sim 5+ / Replicator read this); inherited by descendants."""
+    api = UsdSemantics.LabelsAPI.Apply(prim, taxonomy)
+    api.CreateLabelsAttr().Set(Vt.TokenArray(labels))
+
+
+_TYPES = {bool: Sdf.ValueTypeNames.Bool, int: Sdf.ValueTypeNames.Int, float: Sdf.ValueTypeNames.Double,
+          str: Sdf.ValueTypeNames.String}
+
+
+def set_attrs(prim: Usd.Prim, namespace: str, values: dict[str, Any]) -> None:
+    """Custom attributes ``namespace:key`` with units in the key (``depthM``); lists become arrays."""
+    for key, value in values.items():
+        name = f"{namespace}:{key}"
+        if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
+            prim.CreateAttribute(name, Sdf.ValueTypeNames.StringArray, custom=True).Set(Vt.StringArray(list(value)))
+        elif isinstance(value, (list, tuple, np.ndarray)):
+            arr = np.asarray(value, dtype=np.float64).ravel()
+            prim.CreateAttribute(name, Sdf.ValueTypeNames.DoubleArray, custom=True).Set(Vt.DoubleArray(arr.tolist()))
+        elif isinstance(value, (np.floating, np.integer)):
+            prim.CreateAttribute(name, _TYPES[float if isinstance(value, np.floating) else int], custom=True).Set(value.item())
+        else:
+            prim.CreateAttribute(name, _TYPES[type(value)], custom=True).Set(value)
+
+
+def write_mesh(mesh: UsdGeom.Mesh, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Triangle mesh, polygonal (no subdivision), with extent."""
+    pts = Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(vertices, dtype=np.float32))
+    mesh.CreatePointsAttr(pts)
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, dtype=np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(faces, dtype=np.int32).ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    lo, hi = pts_bounds(vertices)
+    mesh.CreateExtentAttr(Vt.Vec3fArray([lo, hi]))
+
+
+def pts_bounds(vertices: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    v = np.asarray(vertices, dtype=np.float32)
+    return tuple(v.min(axis=0).tolist()), tuple(v.max(axis=0).tolist())
+
+
+def read_mesh(mesh: UsdGeom.Mesh, world: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Points (world space unless told) and triangulated faces (fan split of polygons)."""
+    pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
+    idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+    if world and len(pts):
+        m = np.asarray(mesh.ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64)
+        pts = pts @ m[:3, :3] + m[3, :3]
+    faces = []
+    start = 0
+    for c in counts:
+        for k in range(1, c - 1):
+            faces.append((idx[start], idx[start + k], idx[start + k + 1]))
+        start += c
+    return pts, np.asarray(faces, dtype=np.int64).reshape(-1, 3)
