@@ -3,7 +3,7 @@
 The public API is what this module exports; everything else is private to the framework.
 """
 from .errors import RoadtwinError
-from .model import (ComposeRules, DefectModel, MergedSegment, Placement, RoadSegment,
+from .model import (ComposeRules, DefectModel, FixedDefect, MergedSegment, Placement, RoadSegment,
                     TownLayout, polygon_area, triangle_areas)
 from .params import check_params, describe_params, field, make_params
 from .plugins import PluginManager, get_plugin_manager, hookimpl, reset_plugin_manager
@@ -13,7 +13,7 @@ from .surface import (FlatSurface, GridSurface, SampledSurface, SumSurface, Surf
 __version__ = "0.1.0"
 
 __all__ = [
-    "RoadtwinError", "ComposeRules", "DefectModel", "MergedSegment", "Placement", "RoadSegment",
+    "RoadtwinError", "ComposeRules", "DefectModel", "FixedDefect", "MergedSegment", "Placement", "RoadSegment",
     "TownLayout", "polygon_area", "triangle_areas", "check_params", "describe_params", "field",
     "make_params", "PluginManager", "get_plugin_manager", "hookimpl", "reset_plugin_manager",
     "FlatSurface", "GridSurface", "SampledSurface", "SumSurface", "SurfaceModel",

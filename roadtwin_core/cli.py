@@ -20,7 +20,10 @@ err_console = Console(stderr=True)
 
 
 def _fail(message: str, code: int = 2) -> None:
-    err_console.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    from rich.markup import escape
+
+    # The message is plain text: a path or value with [brackets] must not be read as markup.
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -49,12 +52,17 @@ def compose(
     merger: Optional[str] = typer.Option(None, "--merger", help="merger plugin name (cdt, ...)"),
     surface: Optional[str] = typer.Option(None, "--surface", help="flat | flat:Z | iso8608:CLASS[:DX]"),
     preview: bool = typer.Option(True, help="write preview.png"),
+    executor: str = typer.Option("local", "--executor", help="local (process pool) | serial | ray"),
+    ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local one)"),
+    workers: Optional[int] = typer.Option(None, "--workers", help="worker processes (default: all cores)"),
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from .compose import compose as run_compose
 
+    # Only on a terminal: rich's transient Live still prints a blank line to a pipe or file, and
+    # bad input must leave exactly one line on stderr.
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=err_console, transient=True) as bar:
+                  console=err_console, transient=True, disable=not err_console.is_terminal) as bar:
         tasks: dict[str, int] = {}
 
         def report(stage: str, done: int, total: int) -> None:
@@ -63,7 +71,8 @@ def compose(
             bar.update(tasks[stage], completed=done)
 
         result = run_compose(layout, out, defects=defects, seed=seed, merger=merger, surface=surface,
-                             progress=report, preview=preview)
+                             progress=report, preview=preview, executor=executor, ray_address=ray_address,
+                             workers=workers)
     s = result.summary
     table = Table(title=f"composed {result.town}")
     table.add_column("item")
@@ -109,6 +118,32 @@ def export(
     target = out or stage.with_suffix(exporter.suffix)
     path = exporter.export(stage, target)
     console.print(f"wrote {path}")
+
+
+@app.command("import")
+def import_layout(
+    importer: str = typer.Argument(..., help="layout importer plugin, e.g. opendrive"),
+    source: Path = typer.Argument(..., help="input map file"),
+    out: Path = typer.Option(..., "-o", "--out", help="layout file to write (.usda)"),
+) -> None:
+    """Import a foreign road network (e.g. OpenDRIVE) as a roadtwin layout."""
+    import os as _os
+
+    from .plugins import get_plugin_manager
+    from .usd.layout_io import write_layout
+
+    imp = get_plugin_manager().get("layout_importers", importer)
+    if not source.exists():
+        raise RoadtwinError(f"{source}: no such file")
+    layout = imp.load(source, None)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.stem}.tmp-{_os.getpid()}{out.suffix}")
+    try:
+        write_layout(layout, tmp, f"roadtwin layout imported from {source.name} by {importer}")
+        _os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    console.print(f"wrote {out}: {len(layout.segments)} segments")
 
 
 def main() -> None:

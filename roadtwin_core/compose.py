@@ -13,7 +13,9 @@ import numpy as np
 
 from .atomic import atomic_output_dir
 from .errors import RoadtwinError
+from .executors import make_executor
 from .model import ComposeRules, DefectModel, Placement, TownLayout
+from .params import make_params
 from .placement import place_defects
 from .plugins import PluginManager, get_plugin_manager
 from .surface import parse_surface
@@ -49,9 +51,22 @@ def build_library(rules: ComposeRules, pm: PluginManager) -> dict[str, list[Defe
     return library
 
 
+def fixed_placements(layout: TownLayout, pm: PluginManager) -> list[Placement]:
+    """The layout's pinned defects, each generated from its own type, params and seed."""
+    out = []
+    for fd in layout.fixed:
+        dtype = pm.get("defect_types", fd.defect_type)
+        owner = f"{layout.source}: placement {fd.name}"
+        params = make_params(dtype.Params, fd.params, owner)
+        model = dtype.generate(params, np.random.default_rng(fd.seed), f"fixed_{fd.name}")
+        out.append(Placement(fd.name, model, fd.x, fd.y, fd.yaw, tuple(fd.scale)))
+    return out
+
+
 def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None = None, seed: int | None = None,
             merger: str | None = None, surface: str | None = None, progress: Progress | None = None,
-            pm: PluginManager | None = None, preview: bool = True) -> ComposeResult:
+            pm: PluginManager | None = None, preview: bool = True, executor: str = "local",
+            ray_address: str | None = None, workers: int | None = None) -> ComposeResult:
     t0 = time.perf_counter()
     layout_path = Path(layout_path)
     layout = read_layout(layout_path)
@@ -63,8 +78,9 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     report = progress or (lambda *_: None)
 
     library = build_library(rules, pm) if rules.defect_count else {}
+    fixed = fixed_placements(layout, pm)
     rng = np.random.default_rng(rules.seed)
-    placements = place_defects(layout.segments, library, rules, rng, str(layout_path))
+    placements = place_defects(layout.segments, library, rules, rng, str(layout_path), fixed)
     t_place = time.perf_counter()
 
     bounds = _bounds(layout, pad=2.0)
@@ -73,12 +89,11 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     for i, p in enumerate(placements):
         for sid in p.segment_ids:
             by_segment.setdefault(sid, []).append(i)
-    merged, owners = [], []
-    for k, seg in enumerate(layout.segments):
-        idx = by_segment.get(seg.id, [])
-        merged.append(merger_impl.merge(seg, [placements[i] for i in idx], surf, rules))
-        owners.append(idx)
-        report("merge", k + 1, len(layout.segments))
+    owners = [by_segment.get(seg.id, []) for seg in layout.segments]
+    work = [(seg, [placements[i] for i in idx]) for seg, idx in zip(layout.segments, owners)]
+    runner = make_executor(executor, ray_address, workers)
+    merged = runner.map(_merge_segment, (merger_impl, surf, rules), work,
+                        lambda done, total: report("merge", done, total))
     t_merge = time.perf_counter()
 
     with atomic_output_dir(outdir) as tmp:
@@ -86,10 +101,10 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         shutil.copyfile(layout_path, tmp / "layout" / layout_path.name)
         (tmp / "library").mkdir()
         library_files = {}
-        for models in library.values():
-            for m in models:
-                write_defect_asset(m, tmp / "library" / f"{m.name}.usda")
-                library_files[m.name] = f"./library/{m.name}.usda"
+        models = [m for ms in library.values() for m in ms] + [p.model for p in fixed]
+        for m in models:
+            write_defect_asset(m, tmp / "library" / f"{m.name}.usda")
+            library_files[m.name] = f"./library/{m.name}.usda"
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
                 "merger": rules.merger, "defectCount": len(placements)}
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
@@ -109,6 +124,13 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     outdir = Path(outdir).resolve()
     return ComposeResult(outdir, outdir / "town.usda", summary)
+
+
+def _merge_segment(context, item):
+    """One segment's merge; module-level so process pools and Ray can ship it."""
+    merger_impl, surf, rules = context
+    segment, placements = item
+    return merger_impl.merge(segment, placements, surf, rules)
 
 
 def _bounds(layout: TownLayout, pad: float) -> tuple[float, float, float, float]:

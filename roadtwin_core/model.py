@@ -220,6 +220,10 @@ class ComposeRules:
 
         if self.defect_count < 0:
             raise RoadtwinError(f"{owner}: defect count must be >= 0, got {self.defect_count}")
+        if self.seed < 0:  # numpy's SeedSequence refuses negative seeds
+            raise RoadtwinError(f"{owner}: seed must be >= 0, got {self.seed}")
+        if self.models_per_type < 1:
+            raise RoadtwinError(f"{owner}: models per type must be >= 1, got {self.models_per_type}")
         for name in ("edge_margin_m", "spacing_m", "road_edge_m"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0 or (name == "road_edge_m" and v <= 0):
@@ -236,14 +240,36 @@ class ComposeRules:
 
 
 @dataclass
+class FixedDefect:
+    """A defect the layout pins in place (a test scenario, a surveyed defect): generated from its
+    type and parameters with its own seed, then placed exactly at (x, y, yaw, scale)."""
+
+    name: str
+    defect_type: str
+    params: dict[str, Any]
+    x: float
+    y: float
+    yaw: float = 0.0
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    seed: int = 0
+
+
+@dataclass
 class TownLayout:
-    """Road segments plus the composition rules and where they came from."""
+    """Road segments plus the composition rules and where they came from.
+
+    ``terrain`` holds optional (N,3) world elevation samples (the k-d tree elevation source),
+    ``fixed`` the defects the layout pins in place, ``metadata`` free-form strings carried to the
+    town stage (geo-reference, attribution, default route ...).
+    """
 
     name: str
     segments: list[RoadSegment]
     rules: ComposeRules = field(default_factory=ComposeRules)
     source: str = ""
-    terrain: np.ndarray | None = None  # optional (N,3) elevation samples in world coordinates
+    terrain: np.ndarray | None = None
+    fixed: list[FixedDefect] = field(default_factory=list)
+    metadata: dict[str, str] = field(default_factory=dict)
 
     def segment(self, segment_id: str) -> RoadSegment:
         for s in self.segments:

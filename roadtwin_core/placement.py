@@ -20,8 +20,9 @@ MAX_TRIES = 200
 
 
 def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectModel]], rules: ComposeRules,
-                  rng: np.random.Generator, owner: str) -> list[Placement]:
-    if rules.defect_count == 0:
+                  rng: np.random.Generator, owner: str, fixed: list[Placement] = ()) -> list[Placement]:
+    """Fixed placements first (checked, never moved), then ``rules.defect_count`` random ones."""
+    if rules.defect_count == 0 and not fixed:
         return []
     allowed = [s for s in segments if s.kind in rules.kinds]
     if not allowed:
@@ -40,16 +41,46 @@ def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectMod
     w = np.abs(np.concatenate([triangle_areas(s.vertices, s.faces) for s in allowed]))
     cdf = np.cumsum(w) / w.sum()
 
+    placed: list[Placement] = []
+    grown: list[Polygon] = []
+    cell = 4.0
+    grid: dict[tuple[int, int], list[int]] = {}
+
+    def try_add(p: Placement) -> str:
+        fp = Polygon(p.world_footprint())
+        if not fp.is_valid:
+            return "its footprint self-intersects"
+        if not area_ok.contains(fp):
+            return f"it is not {rules.edge_margin_m} m inside the {', '.join(rules.kinds)} road"
+        g = fp.buffer(rules.spacing_m / 2, quad_segs=2)
+        x0, y0, x1, y1 = g.bounds
+        keys = [(gx, gy) for gx in range(int(x0 // cell), int(x1 // cell) + 1)
+                for gy in range(int(y0 // cell), int(y1 // cell) + 1)]
+        near = {j for key in keys for j in grid.get(key, ())}
+        clash = next((j for j in sorted(near) if g.intersects(grown[j])), None)
+        if clash is not None:
+            return f"it overlaps defect {placed[clash].instance_id}"
+        hit = tree.query(fp, predicate="intersects")
+        p.segment_ids = tuple(sorted(allowed[j].id for j in hit if polys[j].intersection(fp).area > 1e-9))
+        for key in keys:
+            grid.setdefault(key, []).append(len(placed))
+        placed.append(p)
+        grown.append(g)
+        return ""
+
+    for p in fixed:
+        why = try_add(p)
+        if why:
+            raise RoadtwinError(f"{owner}: fixed defect {p.instance_id!r} cannot be placed: {why}")
+    if rules.defect_count == 0:
+        return placed
+
     types = sorted(t for t, wt in rules.type_weights.items() if wt > 0 and library.get(t))
     if not types:
         raise RoadtwinError(f"{owner}: no defect models for the weighted types {sorted(rules.type_weights)}")
     tw = np.array([rules.type_weights[t] for t in types], dtype=np.float64)
     tw /= tw.sum()
 
-    placed: list[Placement] = []
-    grown: list[Polygon] = []
-    cell = 4.0
-    grid: dict[tuple[int, int], list[int]] = {}
     for i in range(rules.defect_count):
         t = types[rng.choice(len(types), p=tw)]
         model = library[t][rng.integers(len(library[t]))]
@@ -66,27 +97,10 @@ def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectMod
             else:
                 yaw = float(rng.uniform(0, 2 * np.pi))
             s = float(rng.uniform(*rules.scale_range))
-            p = Placement(f"D{i:05d}", model, float(xy[0]), float(xy[1]), yaw, (s, s, s))
-            fp = Polygon(p.world_footprint())
-            if not fp.is_valid or not area_ok.contains(fp):
-                continue
-            g = fp.buffer(rules.spacing_m / 2, quad_segs=2)
-            x0, y0, x1, y1 = g.bounds
-            keys = [(gx, gy) for gx in range(int(x0 // cell), int(x1 // cell) + 1)
-                    for gy in range(int(y0 // cell), int(y1 // cell) + 1)]
-            near = {j for key in keys for j in grid.get(key, ())}
-            if any(g.intersects(grown[j]) for j in near):
-                continue
-            hit = tree.query(fp, predicate="intersects")
-            ids = tuple(sorted(allowed[j].id for j in hit if polys[j].intersection(fp).area > 1e-9))
-            p.segment_ids = ids
-            for key in keys:
-                grid.setdefault(key, []).append(len(placed))
-            placed.append(p)
-            grown.append(g)
-            break
+            if not try_add(Placement(f"D{i:05d}", model, float(xy[0]), float(xy[1]), yaw, (s, s, s))):
+                break
         else:
             raise RoadtwinError(
-                f"{owner}: only {len(placed)} of {rules.defect_count} defects fit on the "
+                f"{owner}: only {len(placed) - len(fixed)} of {rules.defect_count} defects fit on the "
                 f"{', '.join(rules.kinds)} road with spacing {rules.spacing_m} m; ask for fewer defects")
     return placed

@@ -40,16 +40,21 @@ def write_preview(path: Path, layout, merged, owners, placements, dpi: int = 110
         centers = np.array([[p.x, p.y] for p in placements])
         d = np.linalg.norm(centers[:, None] - centers[None], axis=-1)
         c = centers[np.argmax((d < 4.0).sum(axis=1))]
-        polys, vals = [], []
+        polys, vals, road_pts = [], [], []
         for m in merged:
             tri = m.vertices[m.faces]
             inside = (np.abs(tri[:, :, 0].mean(1) - c[0]) < 4) & (np.abs(tri[:, :, 1].mean(1) - c[1]) < 4)
             if not inside.any():
                 continue
-            road_z = m.vertices[np.unique(m.faces[m.face_owner == -1]), 2]
-            base = np.median(road_z) if len(road_z) else 0.0
             polys.append(tri[inside][:, :, :2])
-            vals.append(tri[inside][:, :, 2].mean(1) - base)
+            vals.append(tri[inside][:, :, 2].mean(1))
+            road_pts.append(m.vertices[np.unique(m.faces[inside & (m.face_owner == -1)])])
+        if polys:
+            # Heights relative to a plane fitted to the road around: terrain slope removed.
+            rp = np.concatenate(road_pts)
+            coef = np.linalg.lstsq(np.column_stack([np.ones(len(rp)), rp[:, 0], rp[:, 1]]), rp[:, 2], rcond=None)[0]
+            vals = [v - (coef[0] + coef[1] * p[:, :, 0].mean(1) + coef[2] * p[:, :, 1].mean(1))
+                    for v, p in zip(vals, polys)]
         if polys:
             vals_all = np.concatenate(vals)
             lim = max(float(np.abs(vals_all).max()), 1e-3)

@@ -85,13 +85,16 @@ def build_defect(*, name: str, defect_type: str, params: Any, loop: np.ndarray, 
                  extra_points: np.ndarray | None = None,
                  extra_lines: Iterable[tuple[np.ndarray, bool]] = (),
                  max_area: float | None = None, min_angle: float | None = 28.0,
-                 margin: float = 1e-4) -> DefectModel:
+                 margin: float = 1e-4, stretch: float = 1.0) -> DefectModel:
     """Triangulate ``loop`` (+ interior points/constraint lines) and lift it with ``height``.
 
     ``extra_points`` are free interior points (dropped if outside or within ``margin`` of the
     loop). ``extra_lines`` are interior polylines ``(points, closed)`` kept as triangle edges; they
     must lie strictly inside. ``height(xy) -> z`` is evaluated on interior vertices only; the loop
-    is the pseudo-height boundary at z = 0.
+    is the pseudo-height boundary at z = 0. ``stretch`` > 1 triangulates with x divided by it
+    and maps back: quality triangles there are triangles elongated along x here, the right
+    shape for surfaces that vary slowly along x (ruts). A positive axis scale keeps orientation,
+    simplicity and the loop order, and ``max_area`` is then measured in the stretched frame.
     """
     owner = f"defect type {defect_type}"
     loop = np.asarray(loop, dtype=np.float64)
@@ -140,11 +143,13 @@ def build_defect(*, name: str, defect_type: str, params: Any, loop: np.ndarray, 
         opts += f"q{min_angle:g}"
     if max_area:
         opts += f"a{max_area:.12f}"
-    out = triangle.triangulate({"vertices": np.vstack([loop, inner]), "segments": np.vstack(seg)}, opts)
-    v2 = out["vertices"]
+    scale = np.array([stretch, 1.0])
+    out = triangle.triangulate({"vertices": np.vstack([loop, inner]) / scale, "segments": np.vstack(seg)}, opts)
+    v2 = out["vertices"] * scale
     faces = np.asarray(out["triangles"], dtype=np.int64)
-    if len(v2) < n or not np.array_equal(v2[:n], loop):
+    if len(v2) < n or not np.allclose(v2[:n], loop, rtol=0, atol=1e-12):
         raise RoadtwinError(f"{owner}: triangulation moved the boundary loop (internal error)")
+    v2[:n] = loop  # bit-exact loop after the round trip through the stretch
     # Compact unused vertices while keeping the loop first and in order.
     used = np.zeros(len(v2), dtype=bool)
     used[faces.ravel()] = True

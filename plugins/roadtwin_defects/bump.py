@@ -68,7 +68,7 @@ class Bump:
                                     b * np.sign(np.sin(t)) * (f * np.abs(np.sin(t))) ** (2 / m)])
 
         dense = level_set(1.0)
-        h = loop_spacing(closed_length(dense), lo=0.01, hi=0.1, points=180)
+        h = loop_spacing(closed_length(dense), lo=0.01, hi=0.2, points=180)
         # Level sets of u (nested footprints) carry the cross-section with few triangles.
         rings = [resample_closed(level_set(f), 1.6 * h, phase=0.5 * i)
                  for i, f in enumerate([0.85, 0.65, 0.45, 0.25])]

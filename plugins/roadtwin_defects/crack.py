@@ -43,18 +43,19 @@ class Crack:
     def generate(self, params: "Crack.Params", rng: np.random.Generator, name: str) -> DefectModel:
         owner = f"defect type {self.name}"
         p = check_params(params, owner)
-        if p.depth_m > 0 and p.width_m > p.extent_m / 2:
+        if p.width_m > p.extent_m / 2:
             raise RoadtwinError(f"{owner}: parameter width_m ({p.width_m}) must be <= extent_m / 2")
         w, D = p.width_m, p.depth_m
         step = max(3.0 * w, p.extent_m / 25)
         clearance = 1.5 * w
-        lines = _grow_tree(rng, p.extent_m, step, clearance, p.branches, p.tortuosity)
+        lines = _grow_tree(rng, p.extent_m, step, clearance, int(p.branches), p.tortuosity)
         net = MultiLineString([LineString(c) for c in lines])
 
         foot = net.buffer(w / 2, quad_segs=3).simplify(0.1 * w)
         if not isinstance(foot, Polygon) or len(foot.interiors) or not foot.is_valid:
             raise RoadtwinError(f"{owner}: crack network did not buffer to one simple polygon (internal error)")
-        spacing = float(np.clip(2.0 * w, 0.01, 0.04))
+        total = sum(float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) for c in lines)
+        spacing = float(np.clip(max(w, total / 500), 0.01, 0.04))
         loop = densify_closed(np.asarray(foot.exterior.coords)[:-1], spacing)
         # Centre the local frame on the footprint.
         centre = np.asarray(foot.centroid.coords[0])
@@ -83,16 +84,11 @@ def _grow_tree(rng: np.random.Generator, extent: float, step: float, clearance: 
             heading = mean + 0.7 * (heading - mean) + rng.normal(0.0, tortuosity)
             q = pts[-1] + step * np.array([np.cos(heading), np.sin(heading)])
             seg = LineString([pts[-1], q])
-            others = [LineString(c) for c in lines if len(c) > 1]
-            if parent is not None and i == 0:  # the segments touching the attachment point
-                c = lines[parent]
-                others[parent] = LineString(c[:max(at - 1, 0) + 1]) if at >= 2 else None
-                tail = c[at + 1:]
-                if len(tail) >= 2:
-                    others.append(LineString(tail))
-            if len(pts) >= 3:
-                others.append(LineString(pts[:-1]))
-            others = [g for g in others if g is not None and not g.is_empty and g.length > 0]
+            others = [c for j, c in enumerate(lines) if not (i == 0 and j == parent)]
+            if i == 0 and parent is not None:  # the parent minus the two segments touching `at`
+                others += [lines[parent][:at], lines[parent][at + 1:]]
+            others.append(pts[:-1])  # own polyline minus the segment that ends where seg starts
+            others = [LineString(c) for c in others if len(c) >= 2]
             if others and seg.distance(MultiLineString(others)) < clearance:
                 break
             pts.append(q)

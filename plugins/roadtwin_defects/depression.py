@@ -40,7 +40,7 @@ class Depression:
 
         t = np.linspace(0.0, 2 * np.pi, 4096, endpoint=False)
         dense = np.column_stack([a * np.cos(t), b * np.sin(t)])
-        h = loop_spacing(closed_length(dense), lo=0.01, hi=0.06, points=160)
+        h = loop_spacing(closed_length(dense), lo=0.01, hi=0.2, points=160)
         return build_defect(name=name, defect_type=self.name, params=p, loop=resample_closed(dense, h),
                             height=height, extra_points=np.zeros((1, 2)),
                             max_area=np.pi * a * b / 300, margin=0.2 * h)

@@ -32,7 +32,7 @@ class Manhole:
     class Params:
         diameter_m: float = field(0.7, lo=0.1, hi=3.0, doc="cover diameter")
         offset_m: float = field(-0.015, lo=-0.2, hi=0.2, doc="cover height vs road, negative = sunk")
-        ramp_m: float = field(0.02, lo=0.002, hi=0.3, doc="width of the steep transition band")
+        ramp_m: float = field(0.02, lo=0.005, hi=0.3, doc="width of the steep transition band")
         frame_m: float = field(0.06, lo=0.0, hi=0.5, doc="width of the frame ring around the cover")
 
     def sample_params(self, rng: np.random.Generator) -> "Manhole.Params":
@@ -50,11 +50,11 @@ class Manhole:
             r = np.hypot(xy[:, 0], xy[:, 1])
             return p.offset_m * np.clip((ro - r) / p.ramp_m, 0.0, 1.0)
 
-        h = loop_spacing(2 * np.pi * ro, lo=0.01, hi=0.03, points=160)
+        h = loop_spacing(2 * np.pi * ro, lo=0.01, hi=0.05, points=160)
         n = max(24, int(round(2 * np.pi * ro / h)))
         lines = [(_circle(rf, n, 0.5), True)]
         if p.frame_m > 0.25 * h:
             lines.append((_circle(rc, max(24, int(round(n * rc / rf))), 0.0), True))
         return build_defect(name=name, defect_type=self.name, params=p, loop=_circle(ro, n),
                             height=height, extra_lines=lines, extra_points=np.zeros((1, 2)),
-                            max_area=np.pi * rc * rc / 150, margin=0.0)
+                            max_area=np.pi * ro * ro / 200, margin=0.0)

@@ -72,7 +72,7 @@ class Pothole:
         theta = np.linspace(0.0, 2 * np.pi, 2048, endpoint=False)
         r = rim_radius(theta)
         dense = np.column_stack([sx * r * np.cos(theta), sy * r * np.sin(theta)])
-        h = loop_spacing(closed_length(dense), lo=0.01, hi=0.03, points=180)
+        h = loop_spacing(closed_length(dense), lo=0.01, hi=0.06, points=180)
         loop = resample_closed(dense, h)
         # Rings hugging the rim capture the steep wall; the floor is filled by max_area.
         rings = [resample_closed(f * dense, h * s, phase=0.5 * i)

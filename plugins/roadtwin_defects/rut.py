@@ -26,8 +26,8 @@ class Rut:
 
     @dataclass
     class Params:
-        length_m: float = field(4.0, lo=0.1, hi=50.0, doc="extent along travel (+x)")
-        width_m: float = field(0.5, lo=0.02, hi=3.0, doc="extent across travel (+y)")
+        length_m: float = field(4.0, lo=0.1, hi=20.0, doc="extent along travel (+x)")
+        width_m: float = field(0.5, lo=0.05, hi=3.0, doc="extent across travel (+y)")
         depth_m: float = field(0.02, lo=0.0005, hi=0.3, doc="depth along the axis")
         taper_m: float = field(0.8, lo=0.005, hi=25.0, doc="length of each tapering end cap (<= length/2)")
         wander_m: float = field(0.01, lo=0.0, hi=1.0, doc="amplitude of the seeded lateral wander")
@@ -57,7 +57,7 @@ class Rut:
             ex = np.maximum(np.abs(x) - xc, 0.0) / T
             return -D * cosine_bell(np.hypot(ex, y / b))
 
-        spacing_x = float(np.clip(L / 100, 0.03, 0.1))
+        spacing_x = float(np.clip(L / 80, 0.03, 0.12))  # along travel; across: rows 0.2 b apart
 
         def stadium(f: float, spacing: float, phase: float) -> np.ndarray:
             """The level set u = f, sheared by the wander, resampled."""
@@ -76,4 +76,5 @@ class Rut:
         axis = np.column_stack([axis_x, wander(axis_x)])
         return build_defect(name=name, defect_type=self.name, params=p, loop=loop, height=height,
                             extra_points=np.vstack(rings + [axis, [[0.0, wander(np.zeros(1))[0]]]]),
-                            max_area=None, min_angle=20.0, margin=0.05 * b)
+                            max_area=None, min_angle=25.0, margin=0.05 * b,
+                            stretch=spacing_x / (0.2 * b))

@@ -2,7 +2,9 @@
 from .layout_io import read_layout, write_layout
 from .library import read_defect_asset, write_defect_asset
 from .stage import apply_labels, new_stage, set_attrs
+from .town_reader import TownDefect, TownMesh, TownScene, concat_meshes, load_town
 from .validate import Finding, validate_stage
 
 __all__ = ["read_layout", "write_layout", "read_defect_asset", "write_defect_asset", "apply_labels",
-           "new_stage", "set_attrs", "Finding", "validate_stage"]
+           "new_stage", "set_attrs", "Finding", "validate_stage",
+           "TownDefect", "TownMesh", "TownScene", "concat_meshes", "load_town"]

@@ -2,6 +2,7 @@
 rules on the root prim (``roadtwin:rules:*``) and optional terrain elevation samples."""
 from __future__ import annotations
 
+import json
 import math
 import re
 from pathlib import Path
@@ -10,13 +11,15 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..errors import RoadtwinError
-from ..model import ComposeRules, RoadSegment, TownLayout
+from ..model import ComposeRules, FixedDefect, RoadSegment, TownLayout
 from .stage import new_stage, read_mesh, set_kind, write_mesh
 
 SEGMENT_KIND = "roadtwin:segment:kind"
 CENTERLINE = "roadtwin:segment:centerline"
 TERRAIN = "roadtwin:terrain"
 RULES = "roadtwin:rules:"
+PLACEMENT = "roadtwin:placement:"
+META = "roadtwin:layout:"
 _RULE_ATTRS = {"defectCount": "defect_count", "seed": "seed", "surface": "surface", "merger": "merger",
                "modelsPerType": "models_per_type", "edgeMarginM": "edge_margin_m", "spacingM": "spacing_m",
                "roadEdgeM": "road_edge_m"}
@@ -50,8 +53,12 @@ def read_layout(path: str | Path) -> TownLayout:
     stage = open_layout_stage(path)
     root = stage.GetDefaultPrim()
     segments: list[RoadSegment] = []
+    fixed: list[FixedDefect] = []
     terrain = None
     for prim in Usd.PrimRange(root):
+        if prim.HasAttribute(PLACEMENT + "type"):
+            fixed.append(_read_fixed(prim, path))
+            continue
         if prim.HasAttribute(TERRAIN) and prim.IsA(UsdGeom.Points):
             terrain = np.asarray(UsdGeom.Points(prim).GetPointsAttr().Get(), dtype=np.float64).reshape(-1, 3)
             if not np.isfinite(terrain).all():
@@ -81,7 +88,30 @@ def read_layout(path: str | Path) -> TownLayout:
     ids = [s.id for s in segments]
     if len(set(ids)) != len(ids):
         raise RoadtwinError(f"{path}: road segment names must be unique")
-    return TownLayout(root.GetName(), segments, read_rules(root, str(path)), str(path), terrain)
+    metadata = {a.GetName()[len(META):]: str(a.Get()) for a in root.GetAttributes() if a.GetName().startswith(META)}
+    return TownLayout(root.GetName(), segments, read_rules(root, str(path)), str(path), terrain, fixed, metadata)
+
+
+def _read_fixed(prim: Usd.Prim, path: Path) -> FixedDefect:
+    what = f"{path}: placement {prim.GetPath()}"
+
+    def get(key, default=None):
+        attr = prim.GetAttribute(PLACEMENT + key)
+        return attr.Get() if attr and attr.HasAuthoredValue() else default
+
+    try:
+        params = json.loads(get("params", "{}"))
+    except json.JSONDecodeError as exc:
+        raise RoadtwinError(f"{what}: params are not valid JSON ({exc.msg})") from None
+    pose = get("poseXYYaw")
+    if pose is None or len(pose) != 3:
+        raise RoadtwinError(f"{what}: needs {PLACEMENT}poseXYYaw = (x, y, yaw)")
+    scale = tuple(float(v) for v in get("scale", (1.0, 1.0, 1.0)))
+    values = [*map(float, pose), *scale]
+    if not all(math.isfinite(v) for v in values) or min(scale) <= 0:
+        raise RoadtwinError(f"{what}: pose and scale must be finite and scale positive")
+    return FixedDefect(prim.GetName(), str(get("type")), params, float(pose[0]), float(pose[1]), float(pose[2]),
+                       scale, int(get("seed", 0)))
 
 
 def read_rules(root: Usd.Prim, owner: str) -> ComposeRules:
@@ -94,17 +124,36 @@ def read_rules(root: Usd.Prim, owner: str) -> ComposeRules:
         key = name[len(RULES):]
         value = attr.Get()
         if key.startswith("weight:"):
-            weights[key.split(":", 1)[1]] = float(value)
+            weights[key.split(":", 1)[1]] = _rule_value(name, value, float, owner)
         elif key == "kinds":
+            if isinstance(value, str) or not hasattr(value, "__iter__"):
+                raise RoadtwinError(f"{owner}: rule attribute {name} must be a token[] array, got {value!r}")
             values["kinds"] = tuple(str(v) for v in value)
         elif key in _RULE_ATTRS:
-            values[_RULE_ATTRS[key]] = value
+            values[_RULE_ATTRS[key]] = _rule_value(name, value, _RULE_TYPES[key], owner)
         else:
             raise RoadtwinError(f"{owner}: unknown rule attribute {name}")
     rules = ComposeRules(**values)
     if weights:
         rules.type_weights = weights
     return rules.check(owner)
+
+
+_RULE_TYPES = {"defectCount": int, "seed": int, "modelsPerType": int, "surface": str, "merger": str,
+               "edgeMarginM": float, "spacingM": float, "roadEdgeM": float}
+
+
+def _rule_value(name: str, value, kind: type, owner: str):
+    """A rule attribute's value as ``kind``; a wrongly typed attribute is bad input, not a crash."""
+    number = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+    if kind is str and isinstance(value, str):
+        return value
+    if kind is float and number:
+        return float(value)
+    if kind is int and number and float(value).is_integer():
+        return int(value)
+    want = {str: "a string", float: "a number", int: "an integer"}[kind]
+    raise RoadtwinError(f"{owner}: rule attribute {name} must be {want}, got {value!r}")
 
 
 def _safe_name(name: str) -> str:
@@ -145,6 +194,18 @@ def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
                 prim.CreateAttribute(f"roadtwin:segment:{k}", Sdf.ValueTypeNames.String, custom=True).Set(v)
             elif isinstance(v, (int, np.integer)):
                 prim.CreateAttribute(f"roadtwin:segment:{k}", Sdf.ValueTypeNames.Int, custom=True).Set(int(v))
+    for key, value in sorted(layout.metadata.items()):
+        root.CreateAttribute(META + key, Sdf.ValueTypeNames.String, custom=True).Set(str(value))
+    if layout.fixed:
+        set_kind(UsdGeom.Xform.Define(stage, f"/{layout.name}/Placements").GetPrim(), "group")
+    for fd in layout.fixed:
+        prim = UsdGeom.Xform.Define(stage, f"/{layout.name}/Placements/{_safe_name(fd.name)}").GetPrim()
+        prim.CreateAttribute(PLACEMENT + "type", Sdf.ValueTypeNames.String, custom=True).Set(fd.defect_type)
+        prim.CreateAttribute(PLACEMENT + "params", Sdf.ValueTypeNames.String, custom=True).Set(
+            json.dumps(fd.params, sort_keys=True))
+        prim.CreateAttribute(PLACEMENT + "poseXYYaw", Sdf.ValueTypeNames.Double3, custom=True).Set((fd.x, fd.y, fd.yaw))
+        prim.CreateAttribute(PLACEMENT + "scale", Sdf.ValueTypeNames.Double3, custom=True).Set(tuple(fd.scale))
+        prim.CreateAttribute(PLACEMENT + "seed", Sdf.ValueTypeNames.Int, custom=True).Set(int(fd.seed))
     if layout.terrain is not None:
         pts = UsdGeom.Points.Define(stage, f"/{layout.name}/Terrain")
         pts.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(layout.terrain, dtype=np.float32)))
