@@ -16,7 +16,7 @@ from .errors import RoadtwinError
 from .executors import make_executor
 from .model import ComposeRules, DefectModel, Placement, TownLayout
 from .params import make_params
-from .placement import place_defects
+from .placement import lane_length_km, place_defects
 from .plugins import PluginManager, get_plugin_manager
 from .surface import parse_surface
 from .usd.layout_io import read_layout
@@ -72,6 +72,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     layout = read_layout(layout_path)
     rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface).check(
         f"{layout_path}")
+    if defects is None and rules.density_per_km > 0:
+        rules = rules.replace(defect_count=int(round(rules.density_per_km * lane_length_km(layout.segments, rules.kinds))))
     layout.rules = rules
     pm = pm or get_plugin_manager()
     merger_impl = pm.get("mergers", rules.merger)

@@ -210,6 +210,8 @@ class ComposeRules:
     edge_margin_m: float = 0.3
     spacing_m: float = 0.4
     road_edge_m: float = 0.5
+    wheel_path_weight: float = 2.0   # defect density in wheel paths relative to the rest of a lane
+    density_per_km: float = 0.0      # > 0: defect count = density x km of lane centerline
 
     def replace(self, **changes: Any) -> "ComposeRules":
         changes = {k: v for k, v in changes.items() if v is not None}
@@ -224,7 +226,7 @@ class ComposeRules:
             raise RoadtwinError(f"{owner}: seed must be >= 0, got {self.seed}")
         if self.models_per_type < 1:
             raise RoadtwinError(f"{owner}: models per type must be >= 1, got {self.models_per_type}")
-        for name in ("edge_margin_m", "spacing_m", "road_edge_m"):
+        for name in ("edge_margin_m", "spacing_m", "road_edge_m", "wheel_path_weight", "density_per_km"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0 or (name == "road_edge_m" and v <= 0):
                 raise RoadtwinError(f"{owner}: rule {name} must be a positive finite number, got {v}")

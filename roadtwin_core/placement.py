@@ -9,14 +9,35 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
-from shapely.geometry import Polygon
+from shapely.geometry import LineString, Point, Polygon
 from shapely.strtree import STRtree
 
 from .errors import RoadtwinError
 from .model import ComposeRules, DefectModel, Placement, RoadSegment, triangle_areas
 
 ALONG_TRAVEL = {"rut", "bump"}
-MAX_TRIES = 200
+MAX_TRIES = 400
+WHEEL_PATH_OFFSET_M = 0.85   # half the track of a passenger car: wheel paths sit this far off the lane centre
+WHEEL_PATH_HALF_WIDTH_M = 0.35
+
+
+def lane_length_km(segments: list[RoadSegment], kinds: tuple[str, ...]) -> float:
+    """Total centerline length of the lanes defects may go on (for densities per km of lane)."""
+    total = 0.0
+    for s in segments:
+        if s.kind in kinds and s.centerline is not None and len(s.centerline) > 1:
+            total += float(np.linalg.norm(np.diff(s.centerline, axis=0), axis=1).sum())
+    return total / 1000.0
+
+
+def _wheel_path_acceptance(seg: RoadSegment, xy: np.ndarray, weight: float, lines: dict) -> float:
+    """Rejection-sampling weight: 1 in a wheel path, 1/weight elsewhere (and off-centerline lanes)."""
+    if weight <= 1.0 or seg.centerline is None or len(seg.centerline) < 2:
+        return 1.0 / max(weight, 1.0)
+    if seg.id not in lines:
+        lines[seg.id] = LineString(seg.centerline)
+    d = lines[seg.id].distance(Point(xy))
+    return 1.0 if abs(d - WHEEL_PATH_OFFSET_M) <= WHEEL_PATH_HALF_WIDTH_M else 1.0 / weight
 
 
 def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectModel]], rules: ComposeRules,
@@ -81,6 +102,7 @@ def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectMod
     tw = np.array([rules.type_weights[t] for t in types], dtype=np.float64)
     tw /= tw.sum()
 
+    lines: dict[str, LineString] = {}
     for i in range(rules.defect_count):
         t = types[rng.choice(len(types), p=tw)]
         model = library[t][rng.integers(len(library[t]))]
@@ -91,6 +113,8 @@ def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectMod
             s1 = np.sqrt(r1)
             xy = (1 - s1) * a + s1 * (1 - r2) * b + s1 * r2 * c
             seg = allowed[tseg[k]]
+            if rng.random() > _wheel_path_acceptance(seg, xy, rules.wheel_path_weight, lines):
+                continue
             if t in ALONG_TRAVEL:
                 d = seg.travel_direction(xy)[0]
                 yaw = float(np.arctan2(d[1], d[0]) + rng.normal(0.0, np.radians(3.0)))

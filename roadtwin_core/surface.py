@@ -139,11 +139,11 @@ def _cell_average_low(s2: np.ndarray, n1: np.ndarray, n2: np.ndarray, dn1: float
     sub-grid is symmetric, so the spectrum stays Hermitian; the DC cell lies inside
     |n| < band[0] and stays zero.
     """
-    rx = min(radius, len(n1) // 2 - 1)
+    rx = min(radius, len(n1) - 2)
     ry = min(radius, len(n2) // 2 - 1)
     if rx < 0 or ry < 0:
         return s2
-    kx = np.arange(-rx, rx + 1)
+    kx = np.arange(0, rx + 1)  # half spectrum (rfft): non-negative n1 only
     ky = np.arange(-ry, ry + 1)
     off = (np.arange(sub) + 0.5) / sub - 0.5
     fx = (kx[:, None] + off[None, :]) * dn1  # (kx, sub)
@@ -176,15 +176,18 @@ def iso8608_surface(road_class: str, bounds: tuple[float, float, float, float], 
     if n_fft_x * n_fft_y > 120_000_000:
         raise RoadtwinError(f"surface: ISO 8608 grid of {n_fft_x}x{n_fft_y} cells is too large; raise the spacing")
     rng = np.random.default_rng(seed)
-    white = rng.standard_normal((n_fft_y, n_fft_x))
-    n1 = np.fft.fftfreq(n_fft_x, d=dx)
+    # Real FFTs: the field is real, so only the half spectrum n1 >= 0 is stored (half the memory).
+    spectrum = np.fft.rfft2(rng.standard_normal((n_fft_y, n_fft_x)))
+    n1 = np.fft.rfftfreq(n_fft_x, d=dx)
     n2 = np.fft.fftfreq(n_fft_y, d=dx)
     nr = np.hypot(n1[None, :], n2[:, None])
     s2 = np.where((nr >= band[0]) & (nr <= band[1]), iso8608_psd_2d(nr, road_class), 0.0)
+    del nr
     dn1, dn2 = 1.0 / (n_fft_x * dx), 1.0 / (n_fft_y * dx)
     s2 = _cell_average_low(s2, n1, n2, dn1, dn2, band, road_class)
-    gain = np.sqrt(s2 * dn1 * dn2 * n_fft_x * n_fft_y)
-    field = np.fft.ifft2(np.fft.fft2(white) * gain).real[:ny, :nx]
+    spectrum *= np.sqrt(s2 * dn1 * dn2 * n_fft_x * n_fft_y)
+    del s2
+    field = np.fft.irfft2(spectrum, s=(n_fft_y, n_fft_x))[:ny, :nx].copy()
     return GridSurface(xmin - dx / 2, ymin - dx / 2, dx, field)
 
 

@@ -1,11 +1,14 @@
 """Crack: a narrow shallow V-groove network grown as a seeded branching random walk.
 
 Why this shape: surface cracks in asphalt are thin (1-3 cm opened up), shallow (0.5-2 cm),
-meandering and branching. A trunk random walk (heading mean-reverting, so it does not curl up)
-sprouts side branches at 40-80 deg. The network is a tree: every new step must keep a clearance
-of 1.5 groove widths from everything already drawn (a step that would not simply ends that
-branch), so the buffered footprint is always ONE polygon without holes — an enclosed road
-island would need a footprint with a hole, which the merger contract forbids. Cross-section is a
+meandering and branching. A trunk random walk (heading mean-reverting, so it does not curl up;
+turns capped at 50 deg a step) sprouts side branches at least 45 deg from the parent on both
+sides. The network is a tree: every new step keeps a clearance (groove width + 1.5 loop
+spacings) from everything already drawn, and a step that would not simply ends that branch. So
+the buffered footprint is always ONE polygon without holes (an enclosed road island would need a
+hole, which the DefectModel contract forbids), with no outline angle sharper than ~45 deg on
+the road side and no gap narrower than 1.5 loop spacings, which keeps a merger's re-triangulated
+ring around it well shaped. Cross-section is a
 V: depth falls linearly from ``depth_m`` on a centreline to 0 at half the width. Centrelines are
 kept as triangle edges, so the groove bottom is sharp with very few triangles.
 """
@@ -46,16 +49,15 @@ class Crack:
         if p.width_m > p.extent_m / 2:
             raise RoadtwinError(f"{owner}: parameter width_m ({p.width_m}) must be <= extent_m / 2")
         w, D = p.width_m, p.depth_m
-        step = max(3.0 * w, p.extent_m / 25)
-        clearance = 1.5 * w
+        spacing = float(np.clip(max(w, p.extent_m / 50), 0.01, 0.04))  # loop spacing
+        clearance = w + 1.5 * spacing  # gaps between branches stay >= 1.5 loop spacings
+        step = max(1.6 * clearance, p.extent_m / 25)  # a branch clears its parent in one step
         lines = _grow_tree(rng, p.extent_m, step, clearance, int(p.branches), p.tortuosity)
         net = MultiLineString([LineString(c) for c in lines])
 
         foot = net.buffer(w / 2, quad_segs=3).simplify(0.1 * w)
         if not isinstance(foot, Polygon) or len(foot.interiors) or not foot.is_valid:
             raise RoadtwinError(f"{owner}: crack network did not buffer to one simple polygon (internal error)")
-        total = sum(float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()) for c in lines)
-        spacing = float(np.clip(max(w, total / 500), 0.01, 0.04))
         loop = densify_closed(np.asarray(foot.exterior.coords)[:-1], spacing)
         # Centre the local frame on the footprint.
         centre = np.asarray(foot.centroid.coords[0])
@@ -73,27 +75,34 @@ class Crack:
 
 def _grow_tree(rng: np.random.Generator, extent: float, step: float, clearance: float,
                branches: int, tortuosity: float) -> list[np.ndarray]:
-    """Trunk + side branches as polylines; no two come closer than ``clearance`` (a tree)."""
+    """Trunk + side branches as polylines; no two come closer than ``clearance`` (a tree).
+
+    Turns are capped at ``_MAX_TURN`` per step and a branch leaves its parent at least
+    ``_MIN_JUNCTION`` away from both parent segments, so the footprint has no sharp notch
+    (a merger re-triangulating the road around it cannot fix angles the outline itself has).
+    """
     heading0 = rng.uniform(0.0, np.pi)
-    lines: list[list[np.ndarray]] = []
+    lines: list[np.ndarray] = []
 
     def walk(start: np.ndarray, heading: float, n_steps: int, parent: int | None, at: int) -> None:
         pts = [start]
         mean = heading
         for i in range(n_steps):
-            heading = mean + 0.7 * (heading - mean) + rng.normal(0.0, tortuosity)
+            if i > 0 or parent is None:
+                new = mean + 0.7 * (heading - mean) + rng.normal(0.0, tortuosity)
+                heading += float(np.clip(new - heading, -_MAX_TURN, _MAX_TURN))
             q = pts[-1] + step * np.array([np.cos(heading), np.sin(heading)])
             seg = LineString([pts[-1], q])
             others = [c for j, c in enumerate(lines) if not (i == 0 and j == parent)]
             if i == 0 and parent is not None:  # the parent minus the two segments touching `at`
                 others += [lines[parent][:at], lines[parent][at + 1:]]
-            others.append(pts[:-1])  # own polyline minus the segment that ends where seg starts
+            others.append(np.asarray(pts[:-1]))  # own polyline minus the segment seg continues
             others = [LineString(c) for c in others if len(c) >= 2]
             if others and seg.distance(MultiLineString(others)) < clearance:
                 break
             pts.append(q)
         if len(pts) >= 2:
-            lines.append(pts)
+            lines.append(np.asarray(pts))
 
     n_trunk = max(2, int(round(extent / step)))
     trunk_start = -0.5 * extent * np.array([np.cos(heading0), np.sin(heading0)])
@@ -104,9 +113,19 @@ def _grow_tree(rng: np.random.Generator, extent: float, step: float, clearance: 
         if len(c) < 3:
             continue
         at = int(rng.integers(1, len(c) - 1))
-        d = c[at + 1] - c[at - 1]
+        fwd = np.arctan2(*(c[at + 1] - c[at])[::-1])
+        back = np.arctan2(*(c[at - 1] - c[at])[::-1])
         side = 1.0 if rng.random() < 0.5 else -1.0
-        heading = np.arctan2(d[1], d[0]) + side * np.deg2rad(rng.uniform(40.0, 80.0))
+        # Free wedge on that side, measured from the forward segment towards the backward one.
+        span = ((back - fwd) * side) % (2 * np.pi)
+        lo, hi = _MIN_JUNCTION, span - _MIN_JUNCTION
+        frac = rng.uniform(0.0, 1.0)
         n_steps = max(2, int(round(extent * rng.uniform(0.2, 0.5) / step)))
-        walk(c[at], heading, n_steps, parent, at)
-    return [np.asarray(c) for c in lines]
+        if hi < lo:
+            continue
+        walk(c[at], fwd + side * (lo + frac * (hi - lo)), n_steps, parent, at)
+    return lines
+
+
+_MAX_TURN = np.deg2rad(50.0)
+_MIN_JUNCTION = np.deg2rad(45.0)

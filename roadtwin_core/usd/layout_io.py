@@ -22,7 +22,7 @@ PLACEMENT = "roadtwin:placement:"
 META = "roadtwin:layout:"
 _RULE_ATTRS = {"defectCount": "defect_count", "seed": "seed", "surface": "surface", "merger": "merger",
                "modelsPerType": "models_per_type", "edgeMarginM": "edge_margin_m", "spacingM": "spacing_m",
-               "roadEdgeM": "road_edge_m"}
+               "roadEdgeM": "road_edge_m", "wheelPathWeight": "wheel_path_weight", "densityPerKm": "density_per_km"}
 
 
 def open_layout_stage(path: Path) -> Usd.Stage:
@@ -139,8 +139,8 @@ def read_rules(root: Usd.Prim, owner: str) -> ComposeRules:
     return rules.check(owner)
 
 
-_RULE_TYPES = {"defectCount": int, "seed": int, "modelsPerType": int, "surface": str, "merger": str,
-               "edgeMarginM": float, "spacingM": float, "roadEdgeM": float}
+# The Python type each rule attribute must convert to: that of the ComposeRules default.
+_RULE_TYPES = {key: type(getattr(ComposeRules(), attr)) for key, attr in _RULE_ATTRS.items()}
 
 
 def _rule_value(name: str, value, kind: type, owner: str):
@@ -174,7 +174,7 @@ def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
     root.CreateAttribute(RULES + "merger", Sdf.ValueTypeNames.String, custom=True).Set(r.merger)
     root.CreateAttribute(RULES + "kinds", Sdf.ValueTypeNames.TokenArray, custom=True).Set(Vt.TokenArray(list(r.kinds)))
     root.CreateAttribute(RULES + "modelsPerType", Sdf.ValueTypeNames.Int, custom=True).Set(r.models_per_type)
-    for key in ("edgeMarginM", "spacingM", "roadEdgeM"):
+    for key in ("edgeMarginM", "spacingM", "roadEdgeM", "wheelPathWeight", "densityPerKm"):
         root.CreateAttribute(RULES + key, Sdf.ValueTypeNames.Double, custom=True).Set(float(getattr(r, _RULE_ATTRS[key])))
     for t, w in r.type_weights.items():
         root.CreateAttribute(f"{RULES}weight:{t}", Sdf.ValueTypeNames.Double, custom=True).Set(float(w))
