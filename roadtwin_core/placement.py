@@ -105,8 +105,13 @@ def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectMod
     lines: dict[str, LineString] = {}
     for i in range(rules.defect_count):
         t = types[rng.choice(len(types), p=tw)]
-        model = library[t][rng.integers(len(library[t]))]
-        for _ in range(MAX_TRIES):
+        for attempt in range(MAX_TRIES):
+            # A fresh model each try; past half the budget a fresh type too: on a crowded road the
+            # big types (a speed bump spans the road) run out of room first, and the summary's
+            # per-type counts show the resulting mix.
+            if attempt >= MAX_TRIES // 2:
+                t = types[rng.choice(len(types), p=tw)]
+            model = library[t][rng.integers(len(library[t]))]
             k = int(np.searchsorted(cdf, rng.random()))
             a, b, c = tris[k]
             r1, r2 = rng.random(2)

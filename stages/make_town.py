@@ -1,7 +1,7 @@
 """Generate stages/town.usda, the sample town shipped with roadtwin.
 
-A four-way intersection with two-lane arms (3.5 m lanes, 2 m sidewalks), one arm bending
-through a 90-degree curve, segments split every 25 m like CARLA's, neighbouring segments
+A small street grid with six junctions and two-lane streets (3.5 m lanes, 2 m sidewalks), one
+avenue bending through a 90-degree curve, segments split every 25 m like CARLA's, neighbouring segments
 sharing their border vertices exactly. Terrain is a gentle synthetic hill sampled every 5 m
 (the k-d tree elevation source). Run: ``python stages/make_town.py`` (output is deterministic).
 """
@@ -51,23 +51,33 @@ def line(a, b, step=2.5):
     return np.asarray(a) + t * (np.subtract(b, a))
 
 
+def junction(cx: float, cy: float, name: str) -> RoadSegment:
+    h = LANE
+    sq = np.array([[-h, -h], [0, -h], [h, -h], [h, 0], [h, h], [0, h], [-h, h], [-h, 0]]) + (cx, cy)
+    v, f = _mesh(sq)
+    return RoadSegment(name, "junction", v, f, None, {"road": name})
+
+
 def build() -> TownLayout:
+    """Two east-west streets and three north-south streets meeting in six junctions, plus a
+    northern avenue that bends east through a 90-degree curve: about 8,000 m2 of driving lanes,
+    room for the 1,000-defect benchmark."""
     h = LANE
     offsets = [-(h + WALK), -h, 0.0, h, h + WALK]
     kinds = ["sidewalk", "driving", "driving", "sidewalk"]
-    segs: list[RoadSegment] = []
-    segs += strip(line((h, 0), (h + 150, 0)), offsets, kinds, "east")
-    segs += strip(line((-h, 0), (-h - 150, 0)), offsets, kinds, "west")
-    segs += strip(line((0, -h), (0, -h - 120)), offsets, kinds, "south")
+    xs, ys = (-150.0, 0.0, 150.0), (-120.0, 0.0)
+    segs: list[RoadSegment] = [junction(x, y, f"junction_{i}{j}") for i, x in enumerate(xs) for j, y in enumerate(ys)]
+    for j, y in enumerate(ys):
+        for i in range(len(xs) - 1):
+            segs += strip(line((xs[i] + h, y), (xs[i + 1] - h, y)), offsets, kinds, f"street{j}_{i}")
+    for i, x in enumerate(xs):
+        segs += strip(line((x, ys[0] + h), (x, ys[1] - h)), offsets, kinds, f"avenue{i}")
     north = line((0, h), (0, h + 60))
     r = 40.0
     th = np.linspace(np.pi, np.pi / 2, 33)[1:]
     arc = np.column_stack([r + r * np.cos(th), h + 60 + r * np.sin(th)])
     after = line(arc[-1], arc[-1] + (80, 0))[1:]
     segs += strip(np.concatenate([north, arc, after]), offsets, kinds, "north")
-    junction = np.array([[-h, -h], [0, -h], [h, -h], [h, 0], [h, h], [0, h], [-h, h], [-h, 0]])
-    v, f = _mesh(junction)
-    segs.append(RoadSegment("junction", "junction", v, f, None, {"road": "junction"}))
     pts = np.concatenate([s.vertices[:, :2] for s in segs])
     lo, hi = pts.min(0) - 10, pts.max(0) + 10
     gx, gy = np.meshgrid(np.arange(lo[0], hi[0] + 5, 5.0), np.arange(lo[1], hi[1] + 5, 5.0))
@@ -80,5 +90,5 @@ def build() -> TownLayout:
 
 if __name__ == "__main__":
     out = Path(__file__).with_name("town.usda")
-    write_layout(build(), out, "roadtwin sample town: intersection, curve, sidewalks (synthetic, CC0)")
+    write_layout(build(), out, "roadtwin sample town: street grid, junctions, curve, sidewalks (synthetic, CC0)")
     print(f"wrote {out}")
