@@ -77,9 +77,12 @@ class CDTMerger:
         margin = self.params.ring_margin_m or 1.2 * h
         removed = covered_triangles(v2, faces, [pc.region for pc in pieces], margin, h)
         strict = True
-        for _ in range(10):
+        for attempt in range(10):
+            # Growing the cut for quality is bounded: the last attempts keep the best effort.
+            strict = strict and attempt < 8
             try:
-                return self._assemble(segment, v2, faces, removed, pieces, owners, surface, strict)
+                return self._assemble(segment, v2, faces, removed, pieces, owners, surface, strict,
+                                      poly.boundary)
             except _SeamBroken:
                 margin *= 2.0
                 removed = covered_triangles(v2, faces, [pc.region for pc in pieces], margin, h)
@@ -94,7 +97,9 @@ class CDTMerger:
         raise RoadtwinError(f"segment {segment.id!r}: could not merge its defects (footprints too close to each other?)")
 
     def _assemble(self, segment, v2, faces, removed, pieces: list[DefectPiece], owners: list[int],
-                  surface, strict: bool = True) -> MergedSegment:
+                  surface, strict: bool = True, border_line=None) -> MergedSegment:
+        if border_line is None:
+            border_line = segment.polygon().boundary
         # Global vertex table: road vertices first, then defect piece vertices (reusing any road
         # vertex a clipped piece shares bit-for-bit, e.g. a border vertex inside the footprint).
         xy = [v2]
@@ -126,11 +131,8 @@ class CDTMerger:
 
         ring_faces, steiner = ring_cdt(all_xy, faces[removed], pieces, piece_ids, self.params.min_angle_deg,
                                        segment.id)
-        if len(steiner):
-            all_xy = np.concatenate([all_xy, steiner])
-            all_rel = np.concatenate([all_rel, np.zeros(len(steiner))])
-
-        angles = triangle_min_angles(all_xy, ring_faces)
+        chains: dict = {}
+        angles = triangle_min_angles(np.concatenate([all_xy, steiner]), ring_faces)
         bad = angles < self.params.min_angle_deg - 0.5
         if strict and bad.any():
             rim = {tuple(sorted(e)) for e in boundary_edges(faces[removed]).tolist()}
@@ -139,11 +141,34 @@ class CDTMerger:
             on_rim = np.array([tuple(e) in rim for e in edges.tolist()])
             if on_rim.any():
                 raise _LowQuality(edges[on_rim])
+            # -YY rejected the Steiner points that would fix these triangles (they encroach a rim
+            # or loop segment). Let Triangle split segments: a split rim edge means the cut is
+            # too tight there (grow it behind that edge); a split loop edge is taken, and the
+            # defect face on it is split at the same points (on the border at pseudo-height, or
+            # linearly interpolated: the defect surface is unchanged).
+            tris, new_xy, loop_chains, rim_split, blocked = ring_cdt_split(
+                all_xy, faces[removed], pieces, piece_ids, self.params.min_angle_deg, segment.id,
+                border_line)
+            if len(rim_split):
+                raise _LowQuality(rim_split)
+            if not blocked:
+                ring_faces, steiner, chains = tris, new_xy, loop_chains
+        if len(steiner):
+            new_rel = np.zeros(len(steiner))
+            for (a, b), chain in chains.items():
+                for i in chain:
+                    p = steiner[i - len(all_xy)]
+                    d = all_xy[b] - all_xy[a]
+                    t = float(np.dot(p - all_xy[a], d) / np.dot(d, d))
+                    new_rel[i - len(all_xy)] = (1 - t) * all_rel[a] + t * all_rel[b]
+            all_xy = np.concatenate([all_xy, steiner])
+            all_rel = np.concatenate([all_rel, new_rel])
 
         kept = faces[~removed]
-        parts = [kept, ring_faces] + [ids[pc.faces] for pc, ids in zip(pieces, piece_ids)]
+        piece_faces = [_split_faces(ids[pc.faces], chains, all_xy) for pc, ids in zip(pieces, piece_ids)]
+        parts = [kept, ring_faces] + piece_faces
         owners = [np.full(len(kept), -1), np.full(len(ring_faces), -1)] + [
-            np.full(len(pc.faces), owners[i]) for i, pc in enumerate(pieces)]
+            np.full(len(pf), owners[i]) for i, pf in enumerate(piece_faces)]
         all_faces = np.concatenate(parts).astype(np.int64)
         owner = np.concatenate(owners).astype(np.int64)
         ring_index = np.arange(len(kept), len(kept) + len(ring_faces), dtype=np.int64)
@@ -171,7 +196,8 @@ def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: 
         cand = np.flatnonzero((tmax[:, 0] >= x0) & (tmin[:, 0] <= x1) & (tmax[:, 1] >= y0) & (tmin[:, 1] <= y1))
         if len(cand) == 0:
             continue
-        rims = [np.asarray(shapely.segmentize(g.exterior, step).coords)]
+        # A defect clipped to a non-convex segment can fall apart into several polygons.
+        rims = [np.asarray(shapely.segmentize(gp.exterior, step).coords) for gp in getattr(g, "geoms", [g])]
         rims += [np.asarray(geom.exterior.coords) for geom in getattr(region, "geoms", [region])]
         origins = np.concatenate(rims)[:, :2]
         for start in range(0, len(origins), 256):
@@ -180,10 +206,9 @@ def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: 
     return removed
 
 
-def ring_cdt(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectPiece],
-             piece_ids: list[np.ndarray], min_angle: float, segment_id: str) -> tuple[np.ndarray, np.ndarray]:
-    """Constrained Delaunay fill of (cut region) minus (defect pieces). Returns faces (global ids)
-    and the Steiner points Triangle added inside the ring (never on its rim)."""
+def _ring_input(all_xy, removed_faces, pieces, piece_ids):
+    """Triangle's input for the ring: rim and loop segments, hole seeds. Returns the input,
+    the global ids of its vertices, and the input segments (global ids, sorted pairs)."""
     rim = boundary_edges(removed_faces)
     loop_edges = [np.column_stack([ids[l], ids[np.roll(l, -1)]]) for pc, ids in zip(pieces, piece_ids)
                   for l in pc.loops]
@@ -200,6 +225,14 @@ def ring_cdt(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectP
     tri_in = {"vertices": all_xy[ids], "segments": local[key]}
     if holes:
         tri_in["holes"] = np.array(holes)
+    return tri_in, ids, key, loop_edges
+
+
+def ring_cdt(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectPiece],
+             piece_ids: list[np.ndarray], min_angle: float, segment_id: str) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained Delaunay fill of (cut region) minus (defect pieces). Returns faces (global ids)
+    and the Steiner points Triangle added inside the ring (never on its rim)."""
+    tri_in, ids, _, _ = _ring_input(all_xy, removed_faces, pieces, piece_ids)
     out = triangle.triangulate(tri_in, f"pq{min_angle}YY")
     out_v = out["vertices"]
     out_segs = np.sort(out.get("segments", np.zeros((0, 2), dtype=np.int64)), axis=1)
@@ -210,6 +243,70 @@ def ring_cdt(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectP
     n_in = len(ids)
     glob = np.concatenate([ids, len(all_xy) + np.arange(len(out_v) - n_in)])
     return glob[tris], out_v[n_in:]
+
+
+def ring_cdt_split(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectPiece],
+                   piece_ids: list[np.ndarray], min_angle: float, segment_id: str, border_line):
+    """The ring as :func:`ring_cdt`, but Triangle may split rim and loop segments.
+
+    With -YY Triangle rejects every Steiner point that would encroach a segment, so a triangle
+    whose fix lies in a segment's diametral lens stays below the angle bound (Ruppert's
+    guarantee needs segment splitting). Here Triangle splits what it needs. Returns
+    (faces in global ids, new points (global ids from len(all_xy) on), {(a, b): new ids
+    along the loop edge a -> b (a < b)}, split rim edges (global ids), blocked) where
+    ``blocked`` says an edge on the segment's own border was split (it may not be).
+    """
+    tri_in, ids, key, loop_edges = _ring_input(all_xy, removed_faces, pieces, piece_ids)
+    out = triangle.triangulate(tri_in, f"pq{min_angle}")
+    out_v = out["vertices"]
+    n_in = len(ids)
+    if not np.array_equal(out_v[:n_in], all_xy[ids]):
+        raise _SeamBroken(segment_id)
+    glob = np.concatenate([ids, len(all_xy) + np.arange(len(out_v) - n_in)])
+    tris = glob[out["triangles"].astype(np.int64)]
+    on_seg = np.unique(out.get("segments", np.zeros((0, 2), dtype=np.int64)))
+    on_seg = on_seg[on_seg >= n_in]
+    loops = {tuple(e) for e in np.sort(loop_edges, axis=1).tolist()}
+    chains: dict[tuple[int, int], list[tuple[float, int]]] = {}
+    if len(on_seg):
+        a, b = all_xy[key[:, 0]], all_xy[key[:, 1]]
+        d = b - a
+        for p_local in on_seg:
+            p = out_v[p_local]
+            t = np.clip(((p - a) * d).sum(1) / (d * d).sum(1), 0.0, 1.0)
+            k = int(np.argmin(np.linalg.norm(a + t[:, None] * d - p, axis=1)))
+            chains.setdefault((int(key[k, 0]), int(key[k, 1])), []).append((float(t[k]), int(glob[p_local])))
+    split_edges = np.array(sorted(chains), dtype=np.int64).reshape(-1, 2)
+    mid = 0.5 * (all_xy[split_edges[:, 0]] + all_xy[split_edges[:, 1]])
+    blocked = bool(len(mid)) and bool((shapely.distance(border_line, shapely.points(mid)) <= 1e-9).any())
+    rim_split = np.array([e for e in split_edges.tolist() if tuple(e) not in loops], dtype=np.int64).reshape(-1, 2)
+    loop_chains = {e: [i for _, i in sorted(c)] for e, c in chains.items() if e in loops}
+    return tris, out_v[n_in:], loop_chains, rim_split, blocked
+
+
+def _split_faces(faces: np.ndarray, chains: dict, xy: np.ndarray) -> np.ndarray:
+    """Re-triangulate (without new points) the faces with an edge split at the chain points."""
+    if not chains:
+        return faces
+    out = []
+    for f in faces.tolist():
+        ring = []
+        for k in range(3):
+            a, b = f[k], f[(k + 1) % 3]
+            ring.append(a)
+            if (min(a, b), max(a, b)) in chains:
+                c = chains[(min(a, b), max(a, b))]
+                ring.extend(c if a < b else c[::-1])
+        if len(ring) == 3:
+            out.append(f)
+            continue
+        n = len(ring)
+        t = triangle.triangulate({"vertices": xy[ring], "segments": np.column_stack(
+            [np.arange(n), (np.arange(n) + 1) % n])}, "pQ")
+        if len(t["vertices"]) != n:
+            raise RoadtwinError("splitting a defect face along its border added points")
+        out.extend(np.asarray(ring)[t["triangles"]].tolist())
+    return np.asarray(out, dtype=np.int64).reshape(-1, 3)
 
 
 def _split_at_points(edges: np.ndarray, xy: np.ndarray, candidates: np.ndarray) -> np.ndarray:
@@ -241,14 +338,21 @@ def _split_at_points(edges: np.ndarray, xy: np.ndarray, candidates: np.ndarray) 
 
 
 def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float, float]]:
-    """A point inside every kept-road island enclosed by the cut, so Triangle leaves it alone."""
+    """A point inside every kept-road island enclosed by the cut, so Triangle leaves it alone.
+
+    The islands are the bounded faces of the rim's arrangement that the cut does not cover.
+    (Holes of the cut's union are not enough: an island enclosed by two cut regions that touch
+    only at vertices is a hole of neither, and the ring would be laid over it.)
+    """
+    rim = boundary_edges(removed_faces)
     union = shapely.union_all(shapely.polygons(xy[removed_faces]))
+    faces = shapely.get_parts(shapely.polygonize(shapely.linestrings(xy[rim])))
     seeds = []
-    for poly in getattr(union, "geoms", [union]):
-        for ring in poly.interiors:
-            rp = Polygon(ring).representative_point()
+    for face in faces:
+        rp = face.representative_point()
+        if not union.covers(rp):
             seeds.append((rp.x, rp.y))
     return seeds
 
 
-__all__ = ["CDTMerger", "CDTParams", "covered_triangles", "ring_cdt"]
+__all__ = ["CDTMerger", "CDTParams", "covered_triangles", "ring_cdt", "ring_cdt_split"]

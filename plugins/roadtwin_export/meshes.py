@@ -26,9 +26,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import trimesh
-from trimesh.visual import TextureVisuals
-from trimesh.visual.material import PBRMaterial
 
 from ._atomic import atomic_files
 from ._stage import Part, collect_parts, open_stage
@@ -56,7 +53,9 @@ def _class_table(parts: list[Part]) -> tuple[dict[str, int], dict[str, tuple[int
     return ids, colors
 
 
-def _material(cls: str, color: tuple[int, int, int, int]) -> PBRMaterial:
+def _material(cls: str, color: tuple[int, int, int, int]) -> "PBRMaterial":
+    from trimesh.visual.material import PBRMaterial  # trimesh imported only when exporting
+
     return PBRMaterial(name=cls, baseColorFactor=list(color), metallicFactor=0.0, roughnessFactor=0.9,
                        doubleSided=True)
 
@@ -66,7 +65,10 @@ def _extras(part: Part) -> dict:
             "roadtwin": part.attrs}
 
 
-def _scene(parts: list[Part], rotate: np.ndarray | None, with_extras: bool) -> trimesh.Scene:
+def _scene(parts: list[Part], rotate: np.ndarray | None, with_extras: bool) -> "trimesh.Scene":
+    import trimesh
+    from trimesh.visual import TextureVisuals
+
     _, colors = _class_table(parts)
     materials = {c: _material(c, col) for c, col in colors.items()}
     scene = trimesh.Scene()
@@ -149,6 +151,8 @@ class PlyExporter:
         class_id = np.repeat([ids[p.semantic_class] for p in parts], nface).astype(np.int32)
         prim_id = np.repeat(np.arange(len(parts)), nface).astype(np.int32)
         face_colors = np.asarray([colors[p.semantic_class] for p in parts], dtype=np.uint8)[prim_id]
+        import trimesh
+
         mesh = trimesh.Trimesh(vertices, faces, process=False, validate=False, face_colors=face_colors)
         mesh.face_attributes["class_id"] = class_id
         mesh.face_attributes["prim_id"] = prim_id
