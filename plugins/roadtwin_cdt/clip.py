@@ -76,17 +76,25 @@ def _clip(w, faces, footprint, segment_poly, v2, border_edges, what) -> DefectPi
 
 
 def _interpolate(w: np.ndarray, faces: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Relative height of the defect surface at xy (0 outside the footprint)."""
+    """Relative height of the defect surface at xy (0 outside the footprint): a vertical
+    Möller–Trumbore ray per point finds its defect face, then barycentric interpolation."""
     tri = w[faces].copy()
     tri[:, :, 2] = 0.0
-    hits = vertical_ray_hits(xy, tri)
+    lo, hi = xy.min(axis=0) - 1e-9, xy.max(axis=0) + 1e-9
+    near = np.flatnonzero((tri[:, :, 0].max(1) >= lo[0]) & (tri[:, :, 0].min(1) <= hi[0])
+                          & (tri[:, :, 1].max(1) >= lo[1]) & (tri[:, :, 1].min(1) <= hi[1]))
     z = np.zeros(len(xy))
-    for i in np.flatnonzero(hits.any(axis=1)):
-        f = faces[np.flatnonzero(hits[i])[0]]
-        pa, pb, pc = w[f, :2]
-        m = np.array([[pb[0] - pa[0], pc[0] - pa[0]], [pb[1] - pa[1], pc[1] - pa[1]]])
-        u, v = np.linalg.solve(m, xy[i] - pa)
-        z[i] = (1 - u - v) * w[f[0], 2] + u * w[f[1], 2] + v * w[f[2], 2]
+    if len(near) == 0:
+        return z
+    hits = vertical_ray_hits(xy, tri[near])
+    found = hits.any(axis=1)
+    f = faces[near[hits.argmax(axis=1)[found]]]
+    pa, pb, pc = w[f[:, 0], :2], w[f[:, 1], :2], w[f[:, 2], :2]
+    e1, e2, r = pb - pa, pc - pa, xy[found] - pa
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    u = (r[:, 0] * e2[:, 1] - r[:, 1] * e2[:, 0]) / det
+    v = (e1[:, 0] * r[:, 1] - e1[:, 1] * r[:, 0]) / det
+    z[found] = (1 - u - v) * w[f[:, 0], 2] + u * w[f[:, 1], 2] + v * w[f[:, 2], 2]
     return z
 
 

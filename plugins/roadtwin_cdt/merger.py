@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 import triangle
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from shapely.geometry import Polygon
 
 from roadtwin_core import (ComposeRules, MergedSegment, Placement, RoadSegment, RoadtwinError,
@@ -102,35 +104,22 @@ class CDTMerger:
             border_line = segment.polygon().boundary
         # Global vertex table: road vertices first, then defect piece vertices (reusing any road
         # vertex a clipped piece shares bit-for-bit, e.g. a border vertex inside the footprint).
-        xy = [v2]
-        rel = [np.zeros(len(v2))]
-        key_to_id = {(float(x), float(y)): i for i, (x, y) in enumerate(v2)}
-        n = len(v2)
-        piece_ids: list[np.ndarray] = []
-        for pc in pieces:
-            ids = np.empty(len(pc.vertices), dtype=np.int64)
-            new_xy, new_rel = [], []
-            for k, (x, y, z) in enumerate(pc.vertices):
-                key = (float(x), float(y))
-                if key in key_to_id:
-                    ids[k] = key_to_id[key]
-                    if ids[k] < len(v2):
-                        rel[0][ids[k]] = z
-                else:
-                    key_to_id[key] = n
-                    ids[k] = n
-                    n += 1
-                    new_xy.append((x, y))
-                    new_rel.append(z)
-            piece_ids.append(ids)
-            if new_xy:
-                xy.append(np.array(new_xy))
-                rel.append(np.array(new_rel))
-        all_xy = np.concatenate(xy)
-        all_rel = np.concatenate(rel)
+        piece_xyz = np.concatenate([pc.vertices for pc in pieces])
+        keys = np.concatenate([v2, piece_xyz[:, :2]])
+        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+        canon = first[inverse.ravel()]
+        rows = np.arange(len(keys))
+        is_new = (canon == rows) & (rows >= len(v2))
+        new_id = np.cumsum(is_new) - 1 + len(v2)
+        gid = np.where(canon < len(v2), canon, new_id[canon])
+        all_xy = np.concatenate([v2, keys[is_new]])
+        all_rel = np.zeros(len(all_xy))
+        all_rel[gid[len(v2):]] = piece_xyz[:, 2]
+        offsets = np.cumsum([len(v2)] + [len(pc.vertices) for pc in pieces])
+        piece_ids = [gid[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
 
         ring_faces, steiner = ring_cdt(all_xy, faces[removed], pieces, piece_ids, self.params.min_angle_deg,
-                                       segment.id)
+                                       segment.id, border_line)
         chains: dict = {}
         angles = triangle_min_angles(np.concatenate([all_xy, steiner]), ring_faces)
         bad = angles < self.params.min_angle_deg - 0.5
@@ -182,7 +171,7 @@ class CDTMerger:
 
 def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: float, h: float) -> np.ndarray:
     """Triangles within ``margin`` of any defect region: vertices inside the grown region, or hit
-    by vertical rays cast from the grown region's rim and the footprint's vertices."""
+    by vertical rays cast from the grown region's rim."""
     tri = np.zeros((len(faces), 3, 3))
     tri[:, :, :2] = v2[faces]
     tmin = tri[:, :, :2].min(axis=1)
@@ -197,8 +186,9 @@ def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: 
         if len(cand) == 0:
             continue
         # A defect clipped to a non-convex segment can fall apart into several polygons.
+        # Rays from the grown rim suffice: a triangle that meets the footprint but has no vertex
+        # in the grown region is larger than the margin and so is crossed by that rim.
         rims = [np.asarray(shapely.segmentize(gp.exterior, step).coords) for gp in getattr(g, "geoms", [g])]
-        rims += [np.asarray(geom.exterior.coords) for geom in getattr(region, "geoms", [region])]
         origins = np.concatenate(rims)[:, :2]
         for start in range(0, len(origins), 256):
             hits = vertical_ray_hits(origins[start:start + 256], tri[cand])
@@ -206,14 +196,18 @@ def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: 
     return removed
 
 
-def _ring_input(all_xy, removed_faces, pieces, piece_ids):
+def _ring_input(all_xy, removed_faces, pieces, piece_ids, border_line=None):
     """Triangle's input for the ring: rim and loop segments, hole seeds. Returns the input,
     the global ids of its vertices, and the input segments (global ids, sorted pairs)."""
     rim = boundary_edges(removed_faces)
     loop_edges = [np.column_stack([ids[l], ids[np.roll(l, -1)]]) for pc, ids in zip(pieces, piece_ids)
                   for l in pc.loops]
     loop_edges = np.concatenate(loop_edges) if loop_edges else np.zeros((0, 2), dtype=np.int64)
-    rim = _split_at_points(rim, all_xy, np.unique(loop_edges))
+    # Only loop vertices of clipped pieces can lie on a rim edge (on the segment's border).
+    cand = np.unique(loop_edges)
+    if len(cand) and border_line is not None:
+        cand = cand[shapely.distance(border_line, shapely.points(all_xy[cand])) <= 1e-9]
+    rim = _split_at_points(rim, all_xy, cand)
     edges = np.concatenate([rim, loop_edges])
     key = np.unique(np.sort(edges, axis=1), axis=0)
     key = key[key[:, 0] != key[:, 1]]
@@ -229,10 +223,11 @@ def _ring_input(all_xy, removed_faces, pieces, piece_ids):
 
 
 def ring_cdt(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectPiece],
-             piece_ids: list[np.ndarray], min_angle: float, segment_id: str) -> tuple[np.ndarray, np.ndarray]:
+             piece_ids: list[np.ndarray], min_angle: float, segment_id: str,
+             border_line=None) -> tuple[np.ndarray, np.ndarray]:
     """Constrained Delaunay fill of (cut region) minus (defect pieces). Returns faces (global ids)
     and the Steiner points Triangle added inside the ring (never on its rim)."""
-    tri_in, ids, _, _ = _ring_input(all_xy, removed_faces, pieces, piece_ids)
+    tri_in, ids, _, _ = _ring_input(all_xy, removed_faces, pieces, piece_ids, border_line)
     out = triangle.triangulate(tri_in, f"pq{min_angle}YY")
     out_v = out["vertices"]
     out_segs = np.sort(out.get("segments", np.zeros((0, 2), dtype=np.int64)), axis=1)
@@ -256,7 +251,7 @@ def ring_cdt_split(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[D
     along the loop edge a -> b (a < b)}, split rim edges (global ids), blocked) where
     ``blocked`` says an edge on the segment's own border was split (it may not be).
     """
-    tri_in, ids, key, loop_edges = _ring_input(all_xy, removed_faces, pieces, piece_ids)
+    tri_in, ids, key, loop_edges = _ring_input(all_xy, removed_faces, pieces, piece_ids, border_line)
     out = triangle.triangulate(tri_in, f"pq{min_angle}")
     out_v = out["vertices"]
     n_in = len(ids)
@@ -345,6 +340,8 @@ def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float
     only at vertices is a hole of neither, and the ring would be laid over it.)
     """
     rim = boundary_edges(removed_faces)
+    if not _may_enclose(removed_faces, rim):
+        return []
     union = shapely.union_all(shapely.polygons(xy[removed_faces]))
     faces = shapely.get_parts(shapely.polygonize(shapely.linestrings(xy[rim])))
     seeds = []
@@ -353,6 +350,21 @@ def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float
         if not union.covers(rp):
             seeds.append((rp.x, rp.y))
     return seeds
+
+
+def _may_enclose(faces: np.ndarray, rim: np.ndarray) -> bool:
+    """False when every connected cut region is a disk (one rim loop each, no pinched vertex):
+    then nothing is enclosed and the costly island search can be skipped."""
+    n = int(faces.max()) + 1
+    if np.bincount(rim[:, 0], minlength=n).max(initial=0) > 1:
+        return True  # a pinched rim vertex: loops are ambiguous, search properly
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    used = np.unique(faces)
+    n_regions = connected_components(graph, directed=False)[1][used]
+    loops = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n))
+    n_loops = connected_components(loops, directed=False)[1][np.unique(rim)]
+    return len(np.unique(n_loops)) != len(np.unique(n_regions))
 
 
 __all__ = ["CDTMerger", "CDTParams", "covered_triangles", "ring_cdt", "ring_cdt_split"]

@@ -1,0 +1,279 @@
+"""OpenDRIVE XML -> plain records (xml.etree; no geometry here).
+
+Only what the importer needs is read: header, roads (planView, elevationProfile,
+lateralProfile/superelevation, lanes/laneOffset, laneSection left/center/right lanes with their
+width records) and junction ids. Every problem becomes one :class:`RoadtwinError` line naming the
+file and, where there is one, the road id; nothing is skipped silently.
+"""
+from __future__ import annotations
+
+import math
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from roadtwin_core import RoadtwinError
+
+GEOMETRY_KINDS = ("line", "arc", "spiral", "poly3", "paramPoly3")
+# Child elements of <geometry> that carry no shape (tool extensions).
+_GEOMETRY_EXTRAS = {"userData", "include", "dataQuality"}
+
+
+@dataclass
+class Cubic:
+    """a + b*ds + c*ds^2 + d*ds^3 from ``s`` on (ds = s_query - s)."""
+
+    s: float
+    a: float
+    b: float = 0.0
+    c: float = 0.0
+    d: float = 0.0
+
+
+@dataclass
+class Geometry:
+    s: float
+    x: float
+    y: float
+    hdg: float
+    length: float
+    kind: str
+    params: dict[str, float | str] = field(default_factory=dict)
+
+
+@dataclass
+class Lane:
+    id: int
+    type: str
+    widths: list[Cubic]  # s is the sOffset from the lane section start
+
+
+@dataclass
+class LaneSection:
+    s: float
+    left: list[Lane]   # ids 1, 2, 3 ... (inner to outer)
+    right: list[Lane]  # ids -1, -2, -3 ... (inner to outer)
+
+
+@dataclass
+class Road:
+    id: str
+    name: str
+    length: float
+    junction: str
+    geometries: list[Geometry]
+    elevation: list[Cubic]
+    superelevation: list[Cubic]
+    lane_offset: list[Cubic]
+    sections: list[LaneSection]
+
+
+@dataclass
+class Header:
+    name: str = ""
+    vendor: str = ""
+    date: str = ""
+    rev: str = ""
+    geo_reference: str = ""
+    program: str = ""
+
+
+@dataclass
+class OpenDriveFile:
+    path: Path
+    header: Header
+    roads: list[Road]
+    junctions: list[str]
+
+
+def _local(tag: object) -> str:
+    """Tag without an XML namespace (OpenDRIVE 1.8 files may declare one)."""
+    return tag.rsplit("}", 1)[-1] if isinstance(tag, str) else ""
+
+
+class _Reader:
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.name = path.name
+
+    def fail(self, where: str, message: str) -> RoadtwinError:
+        return RoadtwinError(f"{self.name}: {where}{': ' if where else ''}{message}")
+
+    def num(self, el: ET.Element, key: str, where: str, default: float | None = None) -> float:
+        raw = el.get(key)
+        if raw is None:
+            if default is not None:
+                return default
+            raise self.fail(where, f"<{_local(el.tag)}> has no attribute {key!r}")
+        try:
+            value = float(raw.strip())
+        except ValueError:
+            raise self.fail(where, f"<{_local(el.tag)}> attribute {key}={raw!r} is not a number") from None
+        if not math.isfinite(value):
+            raise self.fail(where, f"<{_local(el.tag)}> attribute {key}={raw!r} is not finite")
+        return value
+
+    def cubic(self, el: ET.Element, where: str, s_key: str = "s") -> Cubic:
+        return Cubic(self.num(el, s_key, where), *(self.num(el, k, where, 0.0) for k in "abcd"))
+
+    def cubics(self, parent: ET.Element | None, tag: str, where: str, s_key: str = "s") -> list[Cubic]:
+        if parent is None:
+            return []
+        recs = [self.cubic(el, where, s_key) for el in parent if _local(el.tag) == tag]
+        return sorted(recs, key=lambda r: r.s)
+
+
+def _child(el: ET.Element, tag: str) -> ET.Element | None:
+    for c in el:
+        if _local(c.tag) == tag:
+            return c
+    return None
+
+
+def _children(el: ET.Element | None, tag: str) -> list[ET.Element]:
+    return [] if el is None else [c for c in el if _local(c.tag) == tag]
+
+
+def _road_at(path: Path, position: tuple[int, int]) -> str:
+    """'road <id>' when a parse error lies inside a <road> element (best effort), else ''."""
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines(keepends=True)
+        line, col = position
+        head = "".join(lines[:line - 1]) + (lines[line - 1][:col] if line - 1 < len(lines) else "")
+    except (OSError, ValueError, TypeError, IndexError):
+        return ""
+    starts = list(re.finditer(r"<road\b[^>]*?\bid\s*=\s*[\"']([^\"']*)[\"']", head))
+    if not starts or "</road>" in head[starts[-1].end():]:
+        return ""
+    return f"road {starts[-1].group(1)}"
+
+
+def read_xodr(path: str | Path) -> OpenDriveFile:
+    """Parse an OpenDRIVE file into records; raises RoadtwinError (one line) on any problem."""
+    path = Path(path)
+    rd = _Reader(path)
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise rd.fail(_road_at(path, exc.position), f"not well-formed XML ({exc})") from None
+    except OSError as exc:
+        raise rd.fail("", f"cannot read ({exc.strerror or exc})") from None
+    if _local(root.tag) != "OpenDRIVE":
+        raise rd.fail("", f"not an OpenDRIVE file (root element <{_local(root.tag)}>, expected <OpenDRIVE>)")
+
+    header = Header()
+    h = _child(root, "header")
+    if h is not None:
+        geo = _child(h, "geoReference")
+        user = _child(h, "userData")
+        scene = _child(user, "vectorScene") if user is not None else None
+        header = Header(name=h.get("name", ""), vendor=h.get("vendor", ""), date=h.get("date", ""),
+                        rev=f"{h.get('revMajor', '1')}.{h.get('revMinor', '?')}",
+                        geo_reference=" ".join((geo.text or "").split()) if geo is not None else "",
+                        program=" ".join(filter(None, (scene.get("program", ""), scene.get("version", ""))))
+                        if scene is not None else "")
+
+    roads: list[Road] = []
+    seen: set[str] = set()
+    for i, el in enumerate(_children(root, "road")):
+        rid = el.get("id")
+        if rid is None or not rid.strip():
+            raise rd.fail(f"road #{i + 1}", "has no id")
+        rid = rid.strip()
+        if rid in seen:
+            raise rd.fail(f"road {rid}", "duplicate road id")
+        seen.add(rid)
+        roads.append(_read_road(rd, el, rid))
+    if not roads:
+        raise rd.fail("", "has no <road> elements")
+    junctions = [j.get("id", "").strip() for j in _children(root, "junction")]
+    return OpenDriveFile(path, header, roads, junctions)
+
+
+def _read_road(rd: _Reader, el: ET.Element, rid: str) -> Road:
+    where = f"road {rid}"
+    length = rd.num(el, "length", where)
+    if length <= 0:
+        raise rd.fail(where, f"length must be > 0, got {length}")
+    junction = (el.get("junction") or "-1").strip() or "-1"
+
+    plan = _child(el, "planView")
+    geoms: list[Geometry] = []
+    for g in _children(plan, "geometry"):
+        gs = rd.num(g, "s", where)
+        shapes = [c for c in g if _local(c.tag) not in _GEOMETRY_EXTRAS]
+        if not shapes:
+            raise rd.fail(where, f"<geometry s={g.get('s')}> has no shape element")
+        kind = _local(shapes[0].tag)
+        if kind not in GEOMETRY_KINDS:
+            raise rd.fail(where, f"unknown geometry <{kind}> (known: {', '.join(GEOMETRY_KINDS)})")
+        sh = shapes[0]
+        if kind == "arc":
+            params = {"curvature": rd.num(sh, "curvature", where)}
+        elif kind == "spiral":
+            params = {"curvStart": rd.num(sh, "curvStart", where), "curvEnd": rd.num(sh, "curvEnd", where)}
+        elif kind == "poly3":
+            params = {k: rd.num(sh, k, where, 0.0) for k in "abcd"}
+        elif kind == "paramPoly3":
+            params = {f"{k}{a}": rd.num(sh, f"{k}{a}", where, 0.0) for a in "UV" for k in "abcd"}
+            p_range = sh.get("pRange", "normalized")
+            if p_range not in ("normalized", "arcLength"):
+                raise rd.fail(where, f"<paramPoly3> pRange={p_range!r} (expected normalized or arcLength)")
+            params["pRange"] = p_range
+        else:
+            params = {}
+        glen = rd.num(g, "length", where)
+        if glen < 0:
+            raise rd.fail(where, f"<geometry s={g.get('s')}> has negative length {glen}")
+        geoms.append(Geometry(gs, rd.num(g, "x", where), rd.num(g, "y", where), rd.num(g, "hdg", where, 0.0),
+                              glen, kind, params))
+    if not geoms:
+        raise rd.fail(where, "has no <planView> geometry")
+    geoms.sort(key=lambda g: g.s)
+    geoms = [g for g in geoms if g.length > 1e-12] or geoms[:1]
+
+    lanes_el = _child(el, "lanes")
+    if lanes_el is None:
+        raise rd.fail(where, "has no <lanes>")
+    sections: list[LaneSection] = []
+    for k, ls in enumerate(_children(lanes_el, "laneSection")):
+        ls_where = f"{where}: laneSection {k}"
+        left = _read_lanes(rd, _child(ls, "left"), ls_where, +1)
+        right = _read_lanes(rd, _child(ls, "right"), ls_where, -1)
+        sections.append(LaneSection(rd.num(ls, "s", ls_where), left, right))
+    if not sections:
+        raise rd.fail(where, "has no <laneSection>")
+    sections.sort(key=lambda x: x.s)
+    if not any(sec.left or sec.right for sec in sections):
+        raise rd.fail(where, "has no lanes (only the center lane)")
+
+    return Road(rid, el.get("name", ""), length, junction, geoms,
+                rd.cubics(_child(el, "elevationProfile"), "elevation", where),
+                rd.cubics(_child(el, "lateralProfile"), "superelevation", where),
+                rd.cubics(lanes_el, "laneOffset", where), sections)
+
+
+def _read_lanes(rd: _Reader, side: ET.Element | None, where: str, sign: int) -> list[Lane]:
+    lanes = []
+    for ln in _children(side, "lane"):
+        raw = ln.get("id")
+        try:
+            lid = int(raw)
+        except (TypeError, ValueError):
+            raise rd.fail(where, f"<lane> id={raw!r} is not an integer") from None
+        if lid == 0 or (lid > 0) != (sign > 0):
+            raise rd.fail(where, f"lane {lid} is on the wrong side ({'left' if sign > 0 else 'right'} lanes have "
+                                 f"{'positive' if sign > 0 else 'negative'} ids)")
+        lw = f"{where}: lane {lid}"
+        widths = rd.cubics(ln, "width", lw, s_key="sOffset")
+        if not widths:
+            if _children(ln, "border"):
+                raise rd.fail(lw, "uses <border> records, which are not supported (only <width>)")
+            raise rd.fail(lw, "has no <width> records")
+        lanes.append(Lane(lid, ln.get("type", "none"), widths))
+    lanes.sort(key=lambda x: abs(x.id))
+    ids = [abs(x.id) for x in lanes]
+    if ids != list(range(1, len(ids) + 1)):
+        raise rd.fail(where, f"lane ids {sorted(x.id for x in lanes)} are not consecutive from the center lane")
+    return lanes
