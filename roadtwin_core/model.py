@@ -126,6 +126,7 @@ class RoadSegment:
     centerline: np.ndarray | None = None
     attributes: dict[str, Any] = field(default_factory=dict)
     prim_path: str = ""
+    _polygon: Any = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         what = f"road segment {self.id!r}"
@@ -138,10 +139,12 @@ class RoadSegment:
             self.centerline = np.asarray(self.centerline, dtype=np.float64).reshape(-1, 2)
 
     def polygon(self):
-        """The segment's outline as a shapely polygon (non-convex and holes allowed)."""
+        """The segment's outline as a shapely polygon (non-convex and holes allowed); computed once."""
         from .geometry import mesh_outline_polygon
 
-        return mesh_outline_polygon(self.vertices, self.faces, f"road segment {self.id!r}")
+        if self._polygon is None:
+            self._polygon = mesh_outline_polygon(self.vertices, self.faces, f"road segment {self.id!r}")
+        return self._polygon
 
     def travel_direction(self, xy: np.ndarray) -> np.ndarray:
         """Unit travel direction at points, from the centerline (or the outline's long axis)."""

@@ -177,7 +177,11 @@ def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: 
     tmin = tri[:, :, :2].min(axis=1)
     tmax = tri[:, :, :2].max(axis=1)
     grown = [r.buffer(margin, quad_segs=4) for r in regions]
-    inside = shapely.contains_xy(shapely.union_all(grown), v2[:, 0], v2[:, 1])
+    inside = np.zeros(len(v2), dtype=bool)
+    for g in grown:
+        x0, y0, x1, y1 = g.bounds
+        near = np.flatnonzero((v2[:, 0] >= x0) & (v2[:, 0] <= x1) & (v2[:, 1] >= y0) & (v2[:, 1] <= y1))
+        inside[near[shapely.contains_xy(g, v2[near, 0], v2[near, 1])]] = True
     removed = inside[faces].any(axis=1)
     step = max(min(margin, h) / 2.0, 1e-3)
     for region, g in zip(regions, grown):
