@@ -146,6 +146,11 @@ def import_layout(
     console.print(f"wrote {out}: {len(layout.segments)} segments")
 
 
+from .cli_render import render as _render  # noqa: E402  (subcommands live in their own modules)
+
+app.command("render")(_render)
+
+
 def main() -> None:
     try:
         rc = app(standalone_mode=False)

@@ -1,1 +1,19 @@
-"""Placeholder: this built-in plugin is being written."""
+"""Built-in renderer ``warp``: synthetic perception data from composed towns.
+
+Ray casting on warp (CPU and CUDA) over one labelled triangle mesh of the town: z-depth,
+camera-frame normals, semantic classes, defect instances, rectified-stereo disparity with an
+occlusion mask, and shaded RGB (procedural asphalt / cobblestone / cement, darker wet defects,
+sun and sky with ray-traced shadows, fog, wet road, dusk). The kernels live in ``raycast.py``
+and use only numpy and warp, so they are benchmarked without USD (``bench/render.py``).
+``roadtwin render`` (``roadtwin_core.cli_render``) drives it and writes the datasets.
+"""
+from roadtwin_core import hookimpl
+
+from .renderer import PreparedScene, WarpRenderer
+
+__all__ = ["WarpRenderer", "PreparedScene"]
+
+
+@hookimpl
+def roadtwin_register_renderers(register):
+    register(WarpRenderer())

@@ -1,0 +1,22 @@
+"""Perception data from composed towns: cameras and poses, the renderer contract's data
+(``RenderMesh`` in, ``Frame`` out), an event camera simulator, dataset writers and a torch
+``Dataset`` over their output. Renderers themselves are plugins
+(``roadtwin_register_renderers``); ``roadtwin render`` (``roadtwin_core.cli_render``) ties it
+together. Nothing here imports USD at module level (``stage_lanes`` does, when called) or torch
+(``roadtwin_core.render.dataset`` does, when its class is first used).
+"""
+from .cameras import (Camera, Intrinsics, Lane, StereoCamera, lane_trajectory, load_poses_file, look_from,
+                      rotation_ypr, sample_lane_poses)
+from .events import EventSimulator, luminance
+from .frames import WEATHERS, Frame, RenderParams
+from .scene import (BASE_CLASSES, IGNORE_INDEX, MATERIAL_RULES, MATERIALS, GroundSampler, RenderMesh,
+                    build_render_mesh, class_names, stage_lanes)
+from .writers import FORMATS, DatasetWriter, parse_formats, rle_decode, rle_encode, to_srgb8
+
+__all__ = [
+    "Camera", "Intrinsics", "Lane", "StereoCamera", "lane_trajectory", "load_poses_file", "look_from",
+    "rotation_ypr", "sample_lane_poses", "EventSimulator", "luminance", "WEATHERS", "Frame", "RenderParams",
+    "BASE_CLASSES", "IGNORE_INDEX", "MATERIAL_RULES", "MATERIALS", "GroundSampler", "RenderMesh",
+    "build_render_mesh", "class_names", "stage_lanes", "FORMATS", "DatasetWriter", "parse_formats",
+    "rle_decode", "rle_encode", "to_srgb8",
+]
