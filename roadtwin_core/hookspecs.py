@@ -50,9 +50,13 @@ def roadtwin_register_layout_importers(register):
 
 @hookspec
 def roadtwin_register_renderers(register):
-    """Town stage -> frames (rgb, semantic, instance, depth, normal, disparity, events).
+    """Town stage -> frames (rgb, semantic, instance, depth, normal, disparity).
 
-    Each has ``name``, ``description`` and ``render(scene, cameras, params) -> frames``.
+    Each has ``name``, ``description`` and ``render(scene, cameras, params) -> Iterator[Frame]``
+    (``roadtwin_core.render``: a labelled triangle scene, camera models, RenderParams). Optional:
+    ``prepare(scene, params)`` to build acceleration structures once, and
+    ``check_cameras(prepared, cameras, params)`` to refuse cameras inside geometry before anything
+    is written. Events are simulated by the core from consecutive frames.
     """
 
 
