@@ -150,6 +150,10 @@ from .cli_render import render as _render  # noqa: E402  (subcommands live in th
 
 app.command("render")(_render)
 
+from .cli_plan import plan as _plan  # noqa: E402
+
+app.command("plan")(_plan)
+
 
 def main() -> None:
     try:

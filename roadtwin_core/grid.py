@@ -3,11 +3,14 @@
 A :class:`GridMap` is a set of aligned 2D arrays over an axis-aligned window of the town, one
 cell per ``resolution`` metres (0.2 m as in Zhang et al.). Cell ``[iy, ix]`` covers
 ``[x0 + ix*res, x0 + (ix+1)*res) x [y0 + iy*res, y0 + (iy+1)*res)``; a cell *is* what its centre
-is (centre sampling: a cell belongs to a triangle when its centre lies inside it).
+is (centre sampling: a cell belongs to a triangle when its centre lies inside it). Maps made by
+:func:`rasterize_scene` put cell centres a quarter cell off round coordinates.
 
 * ``drivable``  the lanes: cells of road segments of the drivable kinds (driving, junction) plus
   the defect cells lying on them (a merged road has holes where its defects are).
-* ``defect``    cells inside a defect's baked mesh; ``defect_index`` says which defect.
+* ``defect``    cells inside a defect's baked mesh; ``defect_index`` says which defect. A defect
+  thinner than a cell on average (2 area / perimeter < resolution: a crack, a tiny pothole) would
+  mostly vanish under centre sampling, so every cell one of its vertices falls in counts too.
 * ``depth``     per defect cell, the surrounding road height minus the defect surface height
   (m, positive below the road, negative for bumps). The surrounding road height is a plane fitted
   to the road cells in a ring around the defect, so it follows a sloped or rough road.
@@ -30,7 +33,7 @@ from scipy import ndimage
 from .errors import RoadtwinError
 
 DRIVABLE_KINDS = ("driving", "junction")
-MAX_CELLS = 60_000_000
+MAX_CELLS = 25_000_000
 _CHUNK = 4_000_000
 
 
@@ -109,9 +112,13 @@ class GridMap:
         out[ok] = array[iy[ok], ix[ok]]
         return out
 
-    def road_height(self, xy: np.ndarray) -> np.ndarray:
-        """Road height under world points (nearest drivable cell when the point's cell has none)."""
-        z = self.sample(self.height, xy, np.nan).astype(np.float64)
+    def road_height(self, xy: np.ndarray, defects: bool = False) -> np.ndarray:
+        """Road height under world points (nearest drivable cell when the point's cell has none).
+
+        Without ``defects`` a defect cell reports the surrounding road level (height + depth),
+        e.g. for a path whose rear-axle centre passes over a pothole between the wheels."""
+        level = self.height if defects else self.height + np.where(self.defect, self.depth, 0).astype(np.float32)
+        z = self.sample(level, xy, np.nan).astype(np.float64)
         if np.isnan(z).any():
             filled = self._filled_height()
             ix, iy = self.world_to_cell(xy)
@@ -220,6 +227,22 @@ def rasterize_triangles(tris: np.ndarray, origin: tuple[float, float], resolutio
     return np.concatenate(out_cells), np.concatenate(out_tris), np.concatenate(out_z)
 
 
+def _boundary_length(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Total length of the edges used by one face only (the outline, holes included). Vertices
+    are welded by position first, so pieces of one defect cut by a segment border join up."""
+    xy, weld = np.unique(np.round(np.asarray(vertices)[:, :2], 6), axis=0, return_inverse=True)
+    f = weld.reshape(-1)[np.asarray(faces, dtype=np.int64)]
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    edges, count = np.unique(e, axis=0, return_counts=True)
+    b = edges[count == 1]
+    return float(np.linalg.norm(xy[b[:, 0]] - xy[b[:, 1]], axis=1).sum())
+
+
+def _signed_areas(tris: np.ndarray) -> np.ndarray:
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+
+
 def _triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64)]
 
@@ -239,7 +262,10 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
                             f"(found: {', '.join(found)})")
     road_names = {r.path.rsplit("/", 1)[-1] for r in roads}
     pts = np.concatenate([r.vertices[:, :2] for r in roads])
-    lo = np.floor((pts.min(axis=0) - pad_m) / resolution) * resolution
+    # Cell centres sit a quarter cell off the resolution grid (0.05 + 0.2 k m at 0.2 m), so road
+    # edges at round coordinates (multiples of 0.1 m) never pass exactly through a cell centre,
+    # where "inside or not" would be decided by floating-point noise.
+    lo = np.floor((pts.min(axis=0) - pad_m) / resolution) * resolution - resolution / 4
     hi = pts.max(axis=0) + pad_m
     nx, ny = (int(v) for v in np.ceil((hi - lo) / resolution))
     if nx * ny > MAX_CELLS:
@@ -259,7 +285,7 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
     defect = np.zeros(n, bool)
     index = np.full(n, -1, np.int32)
     surface = np.full(n, np.nan)
-    ids, types = [], []
+    ids, types, depth_attr = [], [], []
     for d in scene.defects:
         pieces = [p for p in d.pieces if len(p.faces) and p.path.rsplit("/", 1)[-1] in road_names]
         if not pieces:
@@ -267,8 +293,25 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
         k = len(ids)
         ids.append(d.id)
         types.append(d.defect_type)
-        cells, _, z = rasterize_triangles(np.concatenate([_triangles(p.vertices, p.faces) for p in pieces]),
-                                          origin, resolution, shape)
+        depth_attr.append(float(d.attributes.get("depthM", 0.0) or 0.0))
+        tris = np.concatenate([_triangles(p.vertices, p.faces) for p in pieces])
+        cells, _, z = rasterize_triangles(tris, origin, resolution, shape)
+        area = float(np.abs(_signed_areas(tris)).sum())
+        perimeter = _boundary_length(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
+        if 2 * area < resolution * perimeter:
+            # Thinner than a cell on average (a crack): centre sampling would lose most of it, so
+            # every cell one of its vertices falls in counts, at the height of its lowest vertex.
+            v = np.concatenate([p.vertices for p in pieces])
+            ix = np.floor((v[:, 0] - origin[0]) / resolution).astype(np.int64)
+            iy = np.floor((v[:, 1] - origin[1]) / resolution).astype(np.int64)
+            ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+            vc = iy[ok] * nx + ix[ok]
+            low = np.full(n, np.inf)
+            np.minimum.at(low, vc, v[ok, 2])
+            extra = np.setdiff1d(np.unique(vc), cells)
+            cells, z = np.concatenate([cells, extra]), np.concatenate([z, low[extra]])
+        if len(cells) == 0:
+            continue
         defect[cells] = True
         index[cells] = k
         surface[cells] = z
@@ -280,25 +323,27 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
     depth = np.zeros(shape, np.float32)
     road2 = (road & ~defect).reshape(shape)
     h2 = height.reshape(shape)
-    gy, gx = np.mgrid[0:ny, 0:nx]
-    xs = origin[0] + (gx + 0.5) * resolution
-    ys = origin[1] + (gy + 0.5) * resolution
-    for k in range(len(ids)):
-        mine = index2 == k
-        rows, cols = np.nonzero(mine)
-        r0, r1 = max(rows.min() - 4, 0), min(rows.max() + 5, ny)
-        c0, c1 = max(cols.min() - 4, 0), min(cols.max() + 5, nx)
-        sub = mine[r0:r1, c0:c1]
-        ring = ndimage.binary_dilation(sub, iterations=2) & road2[r0:r1, c0:c1]
+    # Depth: a plane fitted to the road cells in a ring around each defect, minus its surface.
+    for k, box in enumerate(ndimage.find_objects(index2 + 1, max_label=len(ids))):
+        if box is None:
+            continue
+        r0, r1 = max(box[0].start - 4, 0), min(box[0].stop + 4, ny)
+        c0, c1 = max(box[1].start - 4, 0), min(box[1].stop + 4, nx)
+        sub = index2[r0:r1, c0:c1] == k
+        road_sub = road2[r0:r1, c0:c1]
+        ring = ndimage.binary_dilation(sub, iterations=2) & road_sub
         if ring.sum() < 3:
-            ring = ndimage.binary_dilation(sub, iterations=4) & road2[r0:r1, c0:c1]
-        sx, sy, sh = xs[r0:r1, c0:c1], ys[r0:r1, c0:c1], h2[r0:r1, c0:c1]
+            ring = ndimage.binary_dilation(sub, iterations=4) & road_sub
+        gy, gx = np.mgrid[r0:r1, c0:c1]
+        sx = origin[0] + (gx + 0.5) * resolution
+        sy = origin[1] + (gy + 0.5) * resolution
+        sh = h2[r0:r1, c0:c1]
         if ring.sum() >= 3:
             A = np.column_stack([np.ones(ring.sum()), sx[ring], sy[ring]])
             coef, *_ = np.linalg.lstsq(A, sh[ring], rcond=None)
             base = coef[0] + coef[1] * sx[sub] + coef[2] * sy[sub]
         else:  # no road around it: fall back on the stored attribute
-            base = sh[sub] + float(scene.defects[[d.id for d in scene.defects].index(ids[k])].attributes.get("depthM", 0))
+            base = sh[sub] + depth_attr[k]
         depth[r0:r1, c0:c1][sub] = (base - sh[sub]).astype(np.float32)
 
     return GridMap(origin, float(resolution), drivable.reshape(shape), defect2, depth,

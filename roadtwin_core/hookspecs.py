@@ -72,7 +72,10 @@ def roadtwin_register_physics_backends(register):
 def roadtwin_register_planners(register):
     """Grid maps of a town -> paths with wheel-level or body-level collision.
 
-    Each has ``name``, ``description`` and ``plan(grid, start, goal, params) -> path``.
+    Each has ``name``, ``description``, ``Params`` and
+    ``plan(grid, start, goal, vehicle, collision, params, rng) -> (N, 3) poses or None``, where
+    ``grid`` is a ``roadtwin_core.grid.GridMap``, ``collision`` is "wheel" or "body" (checked
+    with ``roadtwin_core.planning``), and the path runs exactly from start to goal.
     """
 
 

@@ -17,12 +17,12 @@ Collision (Zhang et al.: "collision is checked per wheel, not for the body")
 ---------------------------------------------------------------------------
 ``wheel``: the four tire contact patches (tire width x contact length) must lie on drivable
 cells and on no defect cell; a defect may pass between the wheels (the vehicle straddles it).
-``body``: the whole vehicle outline (body rectangle, overhangs included, never narrower than
-the outer tire edges) must lie on drivable cells and cover no defect cell. Footprints are
-sampled with points at most half a cell apart; a cell is hit when a sample point falls in it.
-A body moving continuously from a free pose can only hit a cell by crossing it with its
-outline, so motion checks use the outline (plus the tires) and only single poses use the
-filled rectangle.
+``body``: the whole vehicle (body rectangle, overhangs included, never narrower than the outer
+tire edges) must lie on drivable cells and cover no defect cell. Footprints are sampled with
+points (tires and outline every half cell, the inside every 1/1.5 cell, so every cell lying fully
+inside the body holds a point); a cell is hit when a sample point falls in it. The body's points
+include the tires' and both levels sample motions at the same poses, so a body-level collision-free
+path is always wheel-level collision-free too.
 
 Metrics (the paper's three plus two)
 ------------------------------------
@@ -164,32 +164,74 @@ class CollisionChecker:
         self.step = res / 2
         tires, self.wheel_of_point = self.vehicle.tire_points(self.step)
         self.tire_local = tires
-        if collision == "wheel":
-            self.motion_local = self.full_local = tires
-        else:
-            self.motion_local = np.concatenate([self.vehicle.body_points(self.step, True), tires])
-            self.full_local = np.concatenate([self.vehicle.body_points(self.step, False), tires])
-        self.reach = float(np.linalg.norm(self.motion_local, axis=1).max())
+        body = np.concatenate([self.vehicle.body_points(res / 1.5, False),   # every cell inside holds one
+                               self.vehicle.body_points(self.step, True), tires])
+        self.motion_local = tires if collision == "wheel" else body
+        # The same motion samples at both levels (the whole vehicle's reach), so a body-level
+        # check, whose points include the tires', is never less strict than a wheel-level one.
+        self.reach = float(np.linalg.norm(body, axis=1).max())
         blocked = grid.defect | ~grid.drivable
         self._blocked = np.pad(blocked, 1, constant_values=True)  # outside the map is blocked
         self._x0, self._y0 = grid.origin
         self._res = res
+        self._discs = self._disc_cover()
+        self._disc_centres = np.array([d[0] for d in self._discs])
+        self._disc_limits = np.array([d[1] for d in self._discs]) + math.sqrt(2) * res
+        self._clear = None  # distance field to the nearest blocked cell, built on first use
+
+    def _disc_cover(self) -> list[tuple[np.ndarray, float, np.ndarray]]:
+        """Group the motion points into a few discs (centre, radius, points): per tire, or per
+        quarter of the body's length."""
+        pts = self.motion_local
+        if self.collision == "wheel":
+            labels = self.wheel_of_point
+        else:
+            x0, x1, _, _ = self.vehicle.body_rect()
+            labels = np.clip(((pts[:, 0] - x0) / (x1 - x0) * 4).astype(int), 0, 3)
+        out = []
+        for k in np.unique(labels):
+            p = pts[labels == k]
+            c = 0.5 * (p.min(axis=0) + p.max(axis=0))
+            out.append((c, float(np.linalg.norm(p - c, axis=1).max()), p))
+        return out
 
     # -- cells
     def blocked_at(self, pts: np.ndarray) -> np.ndarray:
         """Whether world points fall on a blocked cell (defect, off the lanes or off the map)."""
-        ny, nx = self._blocked.shape
-        ix = np.clip(np.floor((pts[..., 0] - self._x0) / self._res).astype(np.int64) + 1, 0, nx - 1)
-        iy = np.clip(np.floor((pts[..., 1] - self._y0) / self._res).astype(np.int64) + 1, 0, ny - 1)
+        ix, iy = self._cells(pts)
         return self._blocked[iy, ix]
 
-    def free(self, poses: np.ndarray, full: bool = False) -> np.ndarray:
-        """(N,) whether each pose's footprint is collision-free (outline only unless ``full``)."""
+    def _cells(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Indices into the padded maps (clamped to the blocked border)."""
+        ny, nx = self._blocked.shape
+        ix = np.floor((pts[..., 0] - self._x0) / self._res).astype(np.int64) + 1
+        iy = np.floor((pts[..., 1] - self._y0) / self._res).astype(np.int64) + 1
+        return np.minimum(np.maximum(ix, 0), nx - 1), np.minimum(np.maximum(iy, 0), ny - 1)
+
+    def free(self, poses: np.ndarray) -> np.ndarray:
+        """(N,) whether each pose's footprint is collision-free.
+
+        Exactly "no sample point on a blocked cell". Shortcut with the same answer: a disc of
+        radius r around some of the points whose centre lies in a cell more than r + sqrt(2)
+        cells from every blocked cell centre cannot have any of those points on a blocked cell
+        (a point in a cell is within res/sqrt(2) of its centre), so only the points of discs
+        that fail this test are looked up.
+        """
         poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
         if len(poses) == 0:
             return np.zeros(0, bool)
-        local = self.full_local if full else self.motion_local
-        return ~self.blocked_at(transform(poses, local)).any(axis=1)
+        if self._clear is None:
+            from scipy import ndimage
+
+            self._clear = ndimage.distance_transform_edt(~self._blocked) * self._res
+        free = np.ones(len(poses), bool)
+        ix, iy = self._cells(transform(poses, self._disc_centres))
+        doubtful = self._clear[iy, ix] <= self._disc_limits  # (N, discs)
+        for k, (_, _, pts) in enumerate(self._discs):
+            doubt = np.flatnonzero(free & doubtful[:, k])
+            if len(doubt):
+                free[doubt] = ~self.blocked_at(transform(poses[doubt], pts)).any(axis=1)
+        return free
 
     # -- motions
     def densify(self, poses: np.ndarray) -> np.ndarray:
@@ -271,7 +313,7 @@ class CollisionChecker:
 
     def path_free(self, poses: np.ndarray) -> bool:
         poses = np.atleast_2d(poses)
-        return bool(self.free(poses[:1], full=True)[0] and self.chains_free([poses])[0])
+        return bool(self.free(poses[:1])[0] and self.chains_free([poses])[0])
 
     # -- explanations
     def explain(self, pose: Sequence[float]) -> str:
@@ -292,7 +334,7 @@ class CollisionChecker:
                 k = int(d[d >= 0][0])
                 return f"its {WHEEL_NAMES[w]} wheel is inside defect {g.defect_name(k)} ({g.defect_types[k]})"
         if self.collision == "body":
-            pts = transform(pose[None], self.full_local)[0]
+            pts = transform(pose[None], self.motion_local)[0]
             ix, iy = g.world_to_cell(pts)
             inside = g.inside(ix, iy)
             if not inside.all() or not g.drivable[iy[inside], ix[inside]].all():
@@ -381,6 +423,38 @@ def reference_path(grid: GridMap, start: Sequence[float], goal: Sequence[float])
     return np.array(out)
 
 
+def reference_frame(grid: GridMap, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per drivable cell, the distance (m) to a reference polyline (the route's midline) and the
+    direction (rad) of its nearest segment; NaN elsewhere."""
+    ref = np.asarray(reference, dtype=np.float64)[:, :2]
+    dist = np.full(grid.shape, np.nan)
+    head = np.full(grid.shape, np.nan)
+    if len(ref) < 2:
+        return dist, head
+    a, seg = ref[:-1], np.diff(ref, axis=0)
+    length2 = np.maximum((seg ** 2).sum(axis=1), 1e-12)
+    heading = np.arctan2(seg[:, 1], seg[:, 0])
+    iy, ix = np.nonzero(grid.drivable)
+    pts = grid.cell_to_world(ix, iy)
+    best = np.full(len(pts), np.inf)
+    which = np.zeros(len(pts), np.int64)
+    for k in range(len(seg)):
+        t = np.clip(((pts - a[k]) @ seg[k]) / length2[k], 0.0, 1.0)
+        d = ((a[k] + t[:, None] * seg[k] - pts) ** 2).sum(axis=1)
+        closer = d < best
+        best[closer] = d[closer]
+        which[closer] = k
+    dist[iy, ix] = np.sqrt(best)
+    head[iy, ix] = heading[which]
+    return dist, head
+
+
+def lane_headings(grid: GridMap, reference: np.ndarray) -> np.ndarray:
+    """Per drivable cell, the direction (rad) of the nearest segment of a reference polyline
+    (the route's midline); NaN elsewhere. Grid planners keep the footprint at this heading."""
+    return reference_frame(grid, reference)[1]
+
+
 def polyline_length(xy: np.ndarray) -> float:
     xy = np.asarray(xy, dtype=np.float64)[:, :2]
     return float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum()) if len(xy) > 1 else 0.0
@@ -437,6 +511,8 @@ def resample_by_length(poses: np.ndarray, step: float) -> np.ndarray:
 
 def path_metrics(grid: GridMap, poses: np.ndarray, vehicle: Vehicle | None = None, collision: str = "wheel",
                  reference_length: float | None = None) -> PathMetrics:
+    """The paper's metrics (see the module docstring) of a path; ``collision`` picks the level
+    that ``collision_free`` is judged at."""
     vehicle = vehicle or Vehicle()
     poses = np.atleast_2d(np.asarray(poses, dtype=np.float64))
     length, turn = heading_changes(poses)
@@ -454,9 +530,7 @@ def path_metrics(grid: GridMap, poses: np.ndarray, vehicle: Vehicle | None = Non
     under = np.where(inside, grid.defect_index[cy, cx], -1)
     off = ~inside | ~grid.drivable[cy, cx]
     hit_ids = sorted({grid.defect_name(int(k)) for k in np.unique(under[under >= 0])})
-    body_dense = body.densify(poses)
-    body_hit = bool(grid.sample(grid.defect, transform(body_dense, body.motion_local), False).any()
-                    or grid.sample(grid.defect, transform(poses[:1], body.full_local), False).any())
+    body_hit = bool(grid.sample(grid.defect, transform(dense, body.motion_local), False).any())
     checker = wheel if collision == "wheel" else body
     travel = resample_by_length(poses, grid.resolution / 2)
     clear = grid.clearance(vehicle.wheel_centres(travel))
@@ -542,9 +616,11 @@ def plan_path(grid: GridMap, planner: Any, start: Sequence[float], goal: Sequenc
     poses = planner.plan(grid, start, goal, vehicle, collision, p, rng)
     dt = time.perf_counter() - t0
     if poses is None or len(poses) == 0:
+        hint = ("the body may not fit past the defects; try --collision wheel or another planner"
+                if collision == "body" else "defects may block the road for the wheels, or the search budget "
+                "ran out; try another planner")
         raise RoadtwinError(f"planner {planner.name}: found no {collision}-level collision-free path from "
-                            f"start to goal (the vehicle may not fit through; try --collision wheel or "
-                            f"another planner)")
+                            f"start to goal ({hint})")
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
     if not np.isfinite(poses).all():
         raise RoadtwinError(f"planner {planner.name}: returned a path with NaN or inf poses")
@@ -552,10 +628,8 @@ def plan_path(grid: GridMap, planner: Any, start: Sequence[float], goal: Sequenc
         if np.hypot(*(end[:2] - np.array(want[:2]))) > 1e-6 or abs(wrap_angle(end[2] - want[2])) > 1e-6:
             raise RoadtwinError(f"planner {planner.name}: its path does not end at the {what} pose")
     metrics = path_metrics(grid, poses, vehicle, collision, reference_length)
-    from dataclasses import asdict as _asdict
-
     return PlanResult(planner.name, collision, poses, grid.road_height(poses[:, :2]), metrics, dt,
-                      _asdict(p), seed, start, goal)
+                      asdict(p), seed, start, goal)
 
 
 # ---------------------------------------------------------------------- outputs
@@ -564,7 +638,7 @@ def write_path_csv(path: Path, result: PlanResult) -> Path:
         w = csv.writer(fh)
         w.writerow(["x", "y", "z", "yaw"])
         for (x, y, yaw), z in zip(result.poses, result.z):
-            w.writerow([f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{yaw:.6f}"])
+            w.writerow([f"{x:.4f}", f"{y:.4f}", f"{z:.4f}", f"{float(wrap_angle(yaw)):.6f}"])
     return path
 
 
@@ -617,6 +691,12 @@ def _draw_grid(ax, grid: GridMap) -> None:
     vmax = max(1.0, float(depth.max()) if grid.defect.any() else 1.0)
     im = ax.imshow(depth, origin="lower", extent=grid.extent, cmap="Reds",
                    norm=mcolors.Normalize(0, vmax), interpolation="nearest")
+    if grid.defect.any():  # outline the defects: small ones are only a few cells
+        x0, x1, y0, y1 = grid.extent
+        ny, nx = grid.shape
+        xs = np.linspace(x0 + grid.resolution / 2, x1 - grid.resolution / 2, nx)
+        ys = np.linspace(y0 + grid.resolution / 2, y1 - grid.resolution / 2, ny)
+        ax.contour(xs, ys, grid.defect.astype(float), levels=[0.5], colors="darkred", linewidths=0.8)
     return im
 
 
@@ -646,6 +726,11 @@ def write_plot(path: Path, grid: GridMap, results: Sequence[PlanResult], vehicle
 
     vehicle = vehicle or Vehicle()
     x0, x1, y0, y1 = grid.extent
+    if results:  # zoom to the paths (and their wheels) plus a margin, within the map
+        pts = np.concatenate([np.concatenate([r.poses[:, :2], vehicle.wheel_centres(r.poses).reshape(-1, 2)])
+                              for r in results])
+        lo, hi = pts.min(axis=0) - 8.0, pts.max(axis=0) + 8.0
+        x0, x1, y0, y1 = max(x0, lo[0]), min(x1, hi[0]), max(y0, lo[1]), min(y1, hi[1])
     aspect = (y1 - y0) / max(x1 - x0, 1e-9)
     n = max(1, len(results))
     width = 13.0
@@ -678,13 +763,15 @@ def write_plot(path: Path, grid: GridMap, results: Sequence[PlanResult], vehicle
     return path
 
 
-def write_path_layer(path: Path, town_ref: str, root_name: str, results: Sequence[PlanResult],
+def write_path_layer(path: Path, town_ref: str, root_name: str, results: Sequence[PlanResult], grid: GridMap,
                      vehicle: Vehicle | None = None, lift_m: float = 0.05) -> Path:
-    """A USD layer (Z up, metres, defaultPrim) that sublayers the town stage and adds each path
-    as a linear ``BasisCurves`` at ``/<root>/Plans/<planner>_<collision>`` (z = road height +
-    ``lift_m``, so the curve is drawn on the road rather than inside it) with its four wheel
-    tracks as a child curve set, and the metrics as ``roadtwin:plan:*`` attributes."""
-    from pxr import Sdf, UsdGeom, Vt
+    """A USD layer (Z up, metres, defaultPrim) that sublayers the town stage (``town_ref``,
+    relative to the layer or absolute) and adds, per result, an Xform
+    ``/<root>/Plans/<planner>_<collision>`` carrying the metrics as ``roadtwin:plan:*``
+    attributes, with two linear ``BasisCurves``: ``Path`` (the rear-axle path) and
+    ``WheelTracks`` (the four wheel contact centres). z = road height + ``lift_m``, so the curves
+    are drawn on the road rather than inside it."""
+    from pxr import Sdf, UsdGeom
 
     from .usd.stage import new_stage, set_attrs, set_kind
 
@@ -697,24 +784,24 @@ def write_path_layer(path: Path, town_ref: str, root_name: str, results: Sequenc
     set_kind(plans.GetPrim(), "group")
     for r in results:
         name = f"{r.planner}_{r.collision}"
-        curve = UsdGeom.BasisCurves.Define(stage, f"/{root_name}/Plans/{name}")
-        pts = np.column_stack([r.poses[:, :2], r.z + lift_m])
-        _set_curves(curve, [pts], 0.1, _rgb(r.planner))
+        group = UsdGeom.Xform.Define(stage, f"/{root_name}/Plans/{name}").GetPrim()
         m = r.metrics
-        set_attrs(curve.GetPrim(), "roadtwin:plan", {
+        set_attrs(group, "roadtwin:plan", {
             "planner": r.planner, "collision": r.collision, "lengthM": m.length_m, "deviationPct": m.deviation_pct,
             "smoothnessRadPerM": m.smoothness_rad_per_m, "meanClearanceM": _finite(m.mean_clearance_m),
-            "minClearanceM": _finite(m.min_clearance_m), "wheelInDefect": m.wheel_in_defect, "seed": int(r.seed)})
+            "minClearanceM": _finite(m.min_clearance_m), "wheelInDefect": m.wheel_in_defect, "seed": int(r.seed),
+            "liftM": float(lift_m)})
+        z = np.nan_to_num(np.asarray(r.z, dtype=np.float64), nan=0.0)
+        curve = UsdGeom.BasisCurves.Define(stage, f"/{root_name}/Plans/{name}/Path")
+        _set_curves(curve, [np.column_stack([r.poses[:, :2], z + lift_m])], 0.1, _rgb(r.planner))
         travel = resample_by_length(r.poses, 0.25)
         w = vehicle.wheel_centres(travel)
-        wz = np.asarray(r.z).min() if len(r.z) else 0.0
         tracks = []
         for k in range(4):
-            z = np.nan_to_num(np.asarray([wz]), nan=0.0)[0]
-            tracks.append(np.column_stack([w[:, k], np.full(len(w), z + lift_m)]))
-        if len(travel):
-            tr = UsdGeom.BasisCurves.Define(stage, f"/{root_name}/Plans/{name}/WheelTracks")
-            _set_curves(tr, tracks, 0.04, tuple(0.5 * c for c in _rgb(r.planner)))
+            wz = np.nan_to_num(grid.road_height(w[:, k]), nan=0.0)
+            tracks.append(np.column_stack([w[:, k], wz + lift_m]))
+        _set_curves(UsdGeom.BasisCurves.Define(stage, f"/{root_name}/Plans/{name}/WheelTracks"), tracks, 0.04,
+                    tuple(0.5 * c for c in _rgb(r.planner)))
     stage.GetRootLayer().Save()
     return path
 
@@ -778,7 +865,7 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
     if not (math.isfinite(resolution) and resolution > 0):
         raise RoadtwinError(f"--resolution must be a positive number of metres, got {resolution}")
     if planners is None:
-        names = sorted(pm.registry("planners"))
+        names = list(pm.registry("planners"))  # registration order (the built-ins: the paper's order)
         if not names:
             raise RoadtwinError("no planners are registered (is the roadtwin planners plugin installed?)")
     else:
@@ -834,7 +921,7 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
                                                        "grid": grid.summary(), "vehicle": asdict(vehicle),
                                                        "reference_path": ref.tolist()})
             write_plot(d / "plot.png", grid, [r], vehicle, f"{stage.name}: {name}")
-            write_path_layer(d / "path.usda", town_ref(d), scene.name, [r], vehicle)
+            write_path_layer(d / "path.usda", town_ref(d), scene.name, [r], grid, vehicle)
             if validate:
                 _validate(d / "path.usda")
         ok = [r for r in run.results if isinstance(r, PlanResult)]

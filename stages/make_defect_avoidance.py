@@ -1,20 +1,21 @@
 """Generate stages/defect_avoidance.usda, the path-planning scenario of Zhang et al.
 
-A straight two-lane road, 60 m along +x, lanes 3.5 m (right lane y in [-3.5, 0], travel +x;
-left lane y in [0, 3.5]), 2 m sidewalks on both sides, split every 20 m like the sample town.
-The vehicle (track 2.0 m, wheelbase 3.0 m) starts in the right lane at x = 4 m and has to reach
-x = 55 m in the same lane. The defects are pinned (``FixedDefect``), laid out so the four kinds
-of decision the paper discusses all occur:
+A straight two-lane road, 110 m along +x, lanes 3.5 m (right lane y in [-3.5, 0], travel +x;
+left lane y in [0, 3.5]), 2 m sidewalks on both sides, split every 22 m. The vehicle (track
+2.0 m, wheelbase 3.0 m, 2.2 m over the tires) starts in the right lane at x = 4 m and has to
+reach x = 105 m in the same lane. The defects are pinned (``FixedDefect``), laid out so that
+the decisions the paper discusses all occur:
 
-* ``straddle_a``, ``straddle_b``: narrow potholes (about 0.6 m across) on the lane centre. With
-  wheel-level collision the vehicle keeps its line and lets them pass between its wheels
-  (inner gap = track - tire width = 1.8 m); a body-level planner has to leave the lane.
-* ``left_wheel``, ``right_wheel``: potholes under one wheel path: a small shift (or a straddle)
-  is enough for the wheels, the body has to go much further.
-* ``oncoming_a``, ``oncoming_b``: potholes in the left lane, harmless for wheels that stay in the
-  right lane but in the way of a body that fled a centre pothole.
+* ``straddle_a/b/c``: narrow potholes (0.6 m across) on the right lane's centre line. With
+  wheel-level collision the vehicle keeps its line and lets them pass between its wheels (inner
+  gap = track - tire width = 1.8 m); a body has to move about 1.5 m to the left.
+* ``centre_line_a/b`` with ``edge_a/b``: a pothole on the lane divider plus one near the left
+  road edge at the same x. Harmless for wheels that stay on the right lane's centre line, but
+  they send a body that fled a straddle pothole back into the right lane: a body-level planner
+  has to slalom, a wheel-level one drives straight.
 * ``wide_depression``: a 3 m wide settlement across the right lane that nothing can straddle:
   every planner has to bypass it through the left lane.
+* ``right_wheel``: a pothole under the right wheel path: a small shift (or a straddle) for wheels.
 
 Rules: no random defects (``defect_count = 0``), flat surface. The layout carries the default
 route as metadata ``roadtwin:layout:planStart`` / ``planGoal`` ("x,y,yaw", radians), which
@@ -31,9 +32,9 @@ import triangle
 from roadtwin_core import ComposeRules, FixedDefect, RoadSegment, TownLayout
 from roadtwin_core.usd import write_layout
 
-LENGTH, LANE, WALK, SPLIT = 60.0, 3.5, 2.0, 20.0
+LENGTH, LANE, WALK, SPLIT = 110.0, 3.5, 2.0, 22.0
 START = (4.0, -1.75, 0.0)
-GOAL = (55.0, -1.75, 0.0)
+GOAL = (105.0, -1.75, 0.0)
 
 
 def _mesh(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -59,15 +60,18 @@ def pothole(radius: float, depth: float = 0.06) -> dict:
 
 
 def defects() -> list[FixedDefect]:
+    small = pothole(0.25, 0.05)
     return [
-        FixedDefect("straddle_a", "pothole", pothole(0.30), 11.0, -1.75, 0.0, seed=1),
-        FixedDefect("oncoming_a", "pothole", pothole(0.30, 0.05), 16.5, 0.9, 0.0, seed=2),
-        FixedDefect("left_wheel", "pothole", pothole(0.30, 0.08), 20.0, -0.75, 0.0, seed=3),  # on the 20 m border
-        FixedDefect("right_wheel", "pothole", pothole(0.28, 0.05), 27.0, -2.75, 0.0, seed=4),
+        FixedDefect("straddle_a", "pothole", pothole(0.30), 14.0, -1.75, 0.0, seed=1),
+        FixedDefect("centre_line_a", "pothole", small, 26.0, -0.1, 0.0, seed=2),
+        FixedDefect("edge_a", "pothole", small, 26.0, 2.5, 0.0, seed=3),
+        FixedDefect("straddle_b", "pothole", pothole(0.30, 0.08), 38.0, -1.75, 0.0, seed=4),
+        FixedDefect("centre_line_b", "pothole", small, 50.0, -0.1, 0.0, seed=5),
+        FixedDefect("edge_b", "pothole", small, 50.0, 2.5, 0.0, seed=6),
         FixedDefect("wide_depression", "depression", {"length_m": 2.5, "width_m": 3.0, "depth_m": 0.04},
-                    37.0, -1.6, 0.0, seed=5),
-        FixedDefect("oncoming_b", "pothole", pothole(0.30, 0.05), 44.0, 1.2, 0.0, seed=6),
-        FixedDefect("straddle_b", "pothole", pothole(0.30), 48.0, -1.75, 0.0, seed=7),
+                    64.0, -1.6, 0.0, seed=7),
+        FixedDefect("straddle_c", "pothole", pothole(0.30), 78.0, -1.75, 0.0, seed=8),
+        FixedDefect("right_wheel", "pothole", pothole(0.25, 0.07), 90.0, -2.75, 0.0, seed=9),
     ]
 
 
@@ -85,7 +89,7 @@ def build() -> TownLayout:
                                     {"road": "main"}))
     rules = ComposeRules(defect_count=0, seed=0, surface="flat", merger="cdt", kinds=("driving",))
     meta = {"planStart": ",".join(f"{v:g}" for v in START), "planGoal": ",".join(f"{v:g}" for v in GOAL),
-            "scenario": "defect avoidance (Zhang et al.): straddle, wheel-path, oncoming-lane and wide defects"}
+            "scenario": "defect avoidance (Zhang et al.): straddle, slalom, wide and wheel-path defects"}
     return TownLayout("Town", segs, rules, fixed=defects(), metadata=meta)
 
 

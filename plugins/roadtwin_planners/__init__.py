@@ -1,1 +1,28 @@
-"""Placeholder: this built-in plugin is being written."""
+"""Built-in path planners: astar, rrtstar, lattice, hybrid_astar (Zhang et al.'s comparison).
+
+Each planner is one module with a small class: ``name``, ``description``, a ``Params``
+dataclass (bounds checked by roadtwin_core) and
+``plan(grid, start, goal, vehicle, collision, params, rng) -> (N, 3) poses or None``, where
+``grid`` is a :class:`roadtwin_core.grid.GridMap`, ``vehicle`` a
+:class:`roadtwin_core.planning.Vehicle` and ``collision`` "wheel" or "body". The returned path
+starts at the start pose and ends at the goal pose; every motion in it has been accepted by
+:class:`roadtwin_core.planning.CollisionChecker`, which the core's metrics use too. All planners
+are deterministic for a given rng seed.
+
+Registered through the entry point ``planners = "roadtwin_planners"`` exactly as a third-party
+planner would be; this package uses only roadtwin_core's modules.
+"""
+from roadtwin_core import hookimpl
+
+from .astar import AStar
+from .hybrid_astar import HybridAStar
+from .lattice import StateLattice
+from .rrtstar import RRTStar
+
+__all__ = ["AStar", "HybridAStar", "RRTStar", "StateLattice"]
+
+
+@hookimpl
+def roadtwin_register_planners(register):
+    for thing in (AStar(), RRTStar(), StateLattice(), HybridAStar()):
+        register(thing)

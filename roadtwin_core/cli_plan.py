@@ -1,0 +1,78 @@
+"""``roadtwin plan``: defect-aware path planning on a town stage (Zhang et al.'s comparison).
+
+Registered in :mod:`roadtwin_core.cli` with ``app.command()(plan)``. Bad input raises
+:class:`~roadtwin_core.RoadtwinError`, which ``roadtwin``'s ``main`` prints as one line (exit 2).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Iterable, Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from .errors import RoadtwinError
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def comparison_table(results: Iterable, title: str = "path planning") -> Table:
+    """The paper's table: one row per planner (and collision level)."""
+    from .planning import PlanFailure
+
+    table = Table(title=title)
+    for col, just in (("planner", "left"), ("collision", "left"), ("length m", "right"), ("deviation %", "right"),
+                      ("smoothness rad/m", "right"), ("clearance m", "right"), ("min clear. m", "right"),
+                      ("wheel in defect", "center"), ("time s", "right")):
+        table.add_column(col, justify=just, no_wrap=col == "planner")
+    for r in results:
+        if isinstance(r, PlanFailure):
+            table.add_row(r.planner, r.collision, "[red]no path[/]", "", "", "", "", "", f"{r.time_s:.2f}")
+            continue
+        m = r.metrics
+        table.add_row(r.planner, r.collision, f"{m.length_m:.2f}", f"{m.deviation_pct:.2f}",
+                      f"{m.smoothness_rad_per_m:.4f}", f"{m.mean_clearance_m:.2f}", f"{m.min_clearance_m:.2f}",
+                      "[red]yes[/]" if m.wheel_in_defect else "no", f"{r.time_s:.2f}")
+    return table
+
+
+def plan(
+    stage: Path = typer.Argument(..., help="composed town (town.usda or its folder), or a layout: composed first into OUT/town"),
+    planner: Optional[str] = typer.Option(None, "--planner", "-p",
+                                          help="planner plugin: astar, rrtstar, lattice, hybrid_astar (default hybrid_astar)"),
+    start: Optional[str] = typer.Option(None, "--start", help="X,Y,YAW in m, m, rad (default: the stage's planStart)"),
+    goal: Optional[str] = typer.Option(None, "--goal", help="X,Y,YAW in m, m, rad (default: the stage's planGoal)"),
+    collision: str = typer.Option("wheel", "--collision", help="wheel: per-tire footprints (may straddle); body: whole vehicle"),
+    all_planners: bool = typer.Option(False, "--all", help="run every registered planner, write a comparison table"),
+    out: Path = typer.Option(..., "-o", "--out", help="output directory (replaced atomically)"),
+    resolution: float = typer.Option(0.2, "--resolution", help="grid cell size in m"),
+    seed: int = typer.Option(0, "--seed", help="random seed (sampling planners)"),
+) -> None:
+    """Plan a path around road defects: grid maps of the stage, planner(s), metrics, plots, USD curve."""
+    from .planning import PlanFailure, plan_stage
+
+    if all_planners and planner is not None:
+        raise RoadtwinError("give --planner NAME or --all, not both")
+    if seed < 0:
+        raise RoadtwinError(f"--seed must be >= 0, got {seed}")
+    names = None if all_planners else [planner or "hybrid_astar"]
+    run = plan_stage(stage, out, planners=names, start=start, goal=goal, collision=collision,
+                     resolution=resolution, seed=seed)
+    if not console.is_terminal:  # a log or a pipe: do not squeeze the table into 80 columns
+        console.width = max(console.width, 130)
+    s, g = run.start, run.goal
+    title = (f"{Path(stage).name}: ({s[0]:g}, {s[1]:g}, {s[2]:g}) -> ({g[0]:g}, {g[1]:g}, {g[2]:g}), "
+             f"{collision}-level, grid {run.grid.resolution:g} m")
+    console.print(comparison_table(run.results, title))
+    for r in run.results:
+        if isinstance(r, PlanFailure):
+            err_console.print(f"warning: {r.planner}: {r.reason}", highlight=False, soft_wrap=True)
+    if run.composed:
+        console.print(f"composed {run.town}", highlight=False)
+    if names is None:
+        console.print(f"wrote {run.outdir}/comparison.csv, comparison.png, paths.usda and one folder per planner",
+                      highlight=False)
+    else:
+        console.print(f"wrote {run.outdir}/path.csv, path.usda, metrics.json, plot.png", highlight=False)
