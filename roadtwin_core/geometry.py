@@ -10,10 +10,11 @@ from .errors import RoadtwinError
 
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """Directed edges used by exactly one face (the mesh outline, holes included)."""
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = np.sort(e, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    return e[counts[inv.ravel()] == 1]
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    n = int(faces.max()) + 1 if len(faces) else 1
+    key = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])  # 1D keys: ~10x faster
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    return e[counts[inverse.reshape(-1)] == 1]
 
 
 def edge_face_counts(faces: np.ndarray) -> np.ndarray:

@@ -17,13 +17,12 @@ import shapely
 import triangle
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from shapely.geometry import Polygon
 
 from roadtwin_core import (ComposeRules, MergedSegment, Placement, RoadSegment, RoadtwinError,
                            SurfaceModel, field)
 from roadtwin_core.geometry import boundary_edges, triangle_min_angles, vertical_ray_hits
+from roadtwin_core.remesh import even_segment_mesh
 
-from .basemesh import segment_base_mesh
 from .clip import DefectPiece, clip_defect
 
 
@@ -64,7 +63,7 @@ class CDTMerger:
     def merge(self, segment: RoadSegment, placements: list[Placement], surface: SurfaceModel,
               rules: ComposeRules) -> MergedSegment:
         h = rules.road_edge_m
-        v2, faces, border = segment_base_mesh(segment, h)
+        v2, faces, border = even_segment_mesh(segment, h)
         if not placements:
             z = surface.height(v2)
             return MergedSegment(segment.id, np.column_stack([v2, z]), faces,
