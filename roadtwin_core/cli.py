@@ -154,6 +154,14 @@ from .cli_plan import plan as _plan  # noqa: E402
 
 app.command("plan")(_plan)
 
+from .cli_sweep import sweep as _sweep  # noqa: E402
+
+app.command("sweep")(_sweep)
+
+from .cli_library import library_app  # noqa: E402
+
+app.add_typer(library_app, name="library")
+
 
 def main() -> None:
     try:

@@ -25,11 +25,7 @@ ATTRIBUTION = ("CARLA Town01 road network (CARLA simulator, carla.org), OpenDRIV
 
 
 def build():
-    net = load_network(SOURCE, OpenDriveParams(attribution=ATTRIBUTION))
-    # Town01 is flat and its elevation samples are 2 m apart: a 1 m road mesh loses nothing and
-    # quarters the triangle count of a 0.5 m one.
-    net.layout.rules = net.layout.rules.replace(road_edge_m=1.0)
-    return net
+    return load_network(SOURCE, OpenDriveParams(attribution=ATTRIBUTION))
 
 
 if __name__ == "__main__":

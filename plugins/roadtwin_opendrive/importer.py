@@ -436,7 +436,10 @@ class _Builder:
         drive = sum(float(triangle_areas(s.vertices, s.faces).sum()) for s in self.segments
                     if s.kind in ("driving", "junction"))
         count = min(self.p.defect_count, int(drive // _M2_PER_DEFECT))
-        rules = ComposeRules(defect_count=count, surface="flat", merger="cdt", kinds=("driving", "junction"))
+        # A 1 m road mesh: elevation samples are terrain_step_m (2 m) apart, so a finer mesh
+        # adds triangles without adding shape.
+        rules = ComposeRules(defect_count=count, surface="flat", merger="cdt", kinds=("driving", "junction"),
+                             road_edge_m=1.0)
         attribution = self.p.attribution or " ".join(filter(None, [
             f"OpenDRIVE {h.rev} map {h.name or odr.path.stem!r}",
             f"by {h.vendor}" if h.vendor else "", f"({h.program})" if h.program else "",

@@ -1,0 +1,21 @@
+"""OpenCRG plugin: ASAM OpenCRG ``.crg`` road surfaces in and out.
+
+- :func:`read_crg` / :func:`write_crg`: the text (LRFI, LDFI) and binary (KRBI, KDBI) formats,
+  as a :class:`CRG` (u/v grid, heights, reference line, options); see ``crg.py``.
+- :class:`CrgSurface`: a CRG as a :class:`roadtwin_core.SurfaceModel` (world xy -> u, v along the
+  reference line -> bilinear height, missing cells filled per OpenCRG's GRID_NAN_MODE).
+- Exporter ``crg`` (suffix ``.crg``): a composed town's road surface sampled along its longest
+  driving lane into a 5 cm grid, written as KRBI; see ``export.py``.
+"""
+from roadtwin_core import hookimpl
+
+from .crg import CRG, CrgSurface, fill_missing, read_crg, write_crg
+from .export import CrgExporter, drape, lane_chain, lane_crg
+
+__all__ = ["CRG", "CrgSurface", "CrgExporter", "drape", "fill_missing", "lane_chain", "lane_crg", "read_crg",
+           "write_crg"]
+
+
+@hookimpl
+def roadtwin_register_exporters(register):
+    register(CrgExporter())
