@@ -162,6 +162,10 @@ from .cli_library import library_app  # noqa: E402
 
 app.add_typer(library_app, name="library")
 
+from .cli_reconstruct import reconstruct_app  # noqa: E402
+
+app.add_typer(reconstruct_app, name="reconstruct")
+
 
 def main() -> None:
     try:

@@ -1,0 +1,187 @@
+"""Fine stream of the hierarchical road model creator: stereo defect reconstruction.
+
+Registers the reconstructor ``stereo_defects`` (produces ``"defects"``). The kernels are
+core-free (numpy / OpenCV / scipy / triangle / shapely) and can be used on their own:
+
+- :mod:`.transform` -- Fan et al.'s disparity transformation (roll angle + road disparity model),
+  OpenCV SGBM disparity from a rectified pair;
+- :mod:`.segment` -- defect pixels and instances from a transformed disparity map;
+- :mod:`.mesh` -- one instance -> 2.5D mesh in a local road frame (z = 0 on the road);
+- :mod:`.synthetic` -- exact disparity of a known bowl pothole, for tests and benchmarks.
+
+Only :class:`StereoDefects` touches roadtwin_core (DefectModel, write_defect_asset, atomic output).
+
+Inputs of ``reconstruct(inputs, params)`` (a dict): ``disparity`` (path to a disparity map, or an
+array) *or* ``left`` + ``right`` (rectified pair, paths or arrays); ``K`` (3x3, or fx, fy, cx, cy)
+and ``baseline`` (m) -- required for metric models; ``transformed`` (bool: the disparity map is
+already transformed, as in ``../shared/data/stereo_pothole``: then only pixels and instances come
+out, since a transformed, normalised map has lost the disparity units needed for 3D points);
+``source`` (a string recorded on every model; default the input path).
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from roadtwin_core import DefectModel, RoadtwinError, check_params, field, hookimpl
+
+from .mesh import DefectInstance, reconstruct_instance
+from .segment import SegmentParams, f1_score, load_disparity, load_label, segment_defects
+from .transform import RoadDisparityModel, fit_road_disparity, sgbm_disparity, transform_disparity
+
+__all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "RoadDisparityModel",
+           "f1_score", "fit_road_disparity", "load_disparity", "load_label", "reconstruct_instance",
+           "segment_defects", "sgbm_disparity", "transform_disparity"]
+
+
+@dataclass
+class StereoDefectsParams:
+    k_grow: float = field(3.0, lo=0.5, doc="candidate pixels: deviation below the road > k_grow robust sigma")
+    k_seed: float = field(10.0, lo=0.5, doc="a defect needs seed pixels deeper than k_seed robust sigma")
+    min_area_frac: float = field(0.002, lo=0.0, hi=1.0, doc="seed pixels a defect needs (fraction of the image)")
+    grid_m: float = field(0.01, lo=1e-4, hi=1.0, doc="grid sampling step of the defect mesh (m)")
+    disparity_scale: float = field(1.0, lo=1e-9, doc="integer disparity PNGs are divided by this (KITTI: 256)")
+    max_disparity: int = field(128, lo=16, hi=1024, doc="SGBM disparity range (px)")
+    min_depth_m: float = field(0.0, lo=0.0, doc="drop reconstructed defects shallower than this (m)")
+
+
+@dataclass
+class StereoResult:
+    models: list[DefectModel]
+    labels: np.ndarray                 # instance labels per pixel (0 = road)
+    transformed: np.ndarray            # transformed disparity
+    road_model: RoadDisparityModel | None
+    instances: list[DefectInstance]
+
+
+def _image(x: Any, what: str) -> tuple[np.ndarray, str]:
+    import cv2
+
+    if isinstance(x, np.ndarray):
+        return x, what
+    p = Path(x)
+    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise RoadtwinError(f"{p}: cannot read {what} image")
+    return img, str(p)
+
+
+def _K(k: Any) -> np.ndarray:
+    a = np.asarray(k, dtype=np.float64).ravel()
+    if a.size == 4:
+        fx, fy, cx, cy = a
+        a = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0])
+    if a.size != 9 or not np.isfinite(a).all() or a[0] <= 0 or a[4] <= 0:
+        raise RoadtwinError(f"calibration K must be 3x3 (or fx, fy, cx, cy) with positive focal lengths, got {k!r}")
+    return a.reshape(3, 3)
+
+
+def _safe_name(stem: str) -> str:
+    s = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "frame"
+    return s if s[0].isalpha() else f"f{s}"
+
+
+class StereoDefects:
+    name = "stereo_defects"
+    description = "stereo pair or disparity map -> pothole defect models (Fan et al. disparity transformation)"
+    produces = "defects"
+    Params = StereoDefectsParams
+
+    def run(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> StereoResult:
+        p = check_params(params or StereoDefectsParams(), self.name)
+        transformed_in = bool(inputs.get("transformed", False))
+        K = _K(inputs["K"]) if inputs.get("K") is not None else None
+        baseline = inputs.get("baseline")
+        if baseline is not None and not (np.isfinite(baseline) and baseline > 0):
+            raise RoadtwinError(f"{self.name}: baseline must be a positive number of meters, got {baseline!r}")
+        if not transformed_in and (K is None or baseline is None):
+            raise RoadtwinError(f"{self.name}: 3D defect models need the calibration K and baseline "
+                                "(or transformed=True for defect pixels only)")
+        if inputs.get("disparity") is not None:
+            src = inputs["disparity"]
+            if isinstance(src, np.ndarray):
+                disp = np.asarray(src, np.float64).copy()
+                disp[~np.isfinite(disp) | (disp <= 0)] = np.nan
+                source = "array"
+            else:
+                disp = load_disparity(src, p.disparity_scale)
+                source = str(src)
+        elif inputs.get("left") is not None and inputs.get("right") is not None:
+            if K is None or baseline is None:
+                raise RoadtwinError(f"{self.name}: a stereo pair needs the calibration K and baseline")
+            left, source = _image(inputs["left"], "left")
+            right, _ = _image(inputs["right"], "right")
+            if left.shape[:2] != right.shape[:2]:
+                raise RoadtwinError(f"{self.name}: left and right images differ in size: "
+                                    f"{left.shape[:2]} vs {right.shape[:2]}")
+            disp = sgbm_disparity(left, right, p.max_disparity)
+        else:
+            raise RoadtwinError(f"{self.name}: give a disparity map or a rectified left + right pair")
+        source = str(inputs.get("source") or source)
+        valid = np.isfinite(disp)
+        if valid.mean() < 0.05:
+            raise RoadtwinError(f"{self.name}: {source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")
+        seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, min_area_frac=p.min_area_frac)
+        road = None
+        if transformed_in:
+            dt = disp
+        else:
+            try:
+                dt, road = transform_disparity(disp)
+            except ValueError as exc:
+                raise RoadtwinError(f"{self.name}: {source}: {exc}") from None
+        labels = segment_defects(dt, seg)
+        models: list[DefectModel] = []
+        instances: list[DefectInstance] = []
+        if not transformed_in:
+            stem = _safe_name(Path(source).stem if source != "array" else "stereo")
+            for i in range(1, int(labels.max()) + 1):
+                try:
+                    inst = reconstruct_instance(labels == i, disp, K, float(baseline), grid_m=p.grid_m)
+                    m = DefectModel(f"{stem}_defect_{i:02d}", "pothole", inst.vertices, inst.faces, inst.boundary,
+                                    source=source, params={"reconstructor": self.name, "instance": i,
+                                                           "pixels": inst.pixels, "grid_m": p.grid_m,
+                                                           "roll_rad": None if road is None else road.theta})
+                except (ValueError, RoadtwinError):
+                    continue  # an instance too small or too close to the image edge to mesh
+                if m.depth_m < p.min_depth_m:
+                    continue
+                models.append(m)
+                instances.append(inst)
+        return StereoResult(models, labels, dt, road, instances)
+
+    def reconstruct(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> list[DefectModel]:
+        return self.run(inputs, params).models
+
+    def write(self, result: StereoResult, out: str | Path) -> list[Path]:
+        """Write one library asset per model plus ``mask.png`` (defect pixels 255) and
+        ``instances.json`` into ``out`` (replaced atomically)."""
+        import cv2
+
+        from roadtwin_core.atomic import atomic_output_dir
+        from roadtwin_core.usd.library import write_defect_asset
+
+        paths = []
+        with atomic_output_dir(out) as tmp:
+            if not cv2.imwrite(str(tmp / "mask.png"), ((result.labels > 0) * 255).astype(np.uint8)):
+                raise RoadtwinError(f"{out}: cannot write mask.png")
+            cv2.imwrite(str(tmp / "instances.png"), result.labels.astype(np.uint16))
+            meta = {"instances": int(result.labels.max()),
+                    "roll_rad": None if result.road_model is None else result.road_model.theta,
+                    "models": []}
+            for m in result.models:
+                write_defect_asset(m, tmp / f"{m.name}.usda")
+                paths.append(Path(out) / f"{m.name}.usda")
+                meta["models"].append({"name": m.name, **{k: v for k, v in m.attributes().items()}})
+            (tmp / "instances.json").write_text(json.dumps(meta, indent=2))
+        return paths
+
+
+@hookimpl
+def roadtwin_register_reconstructors(register):
+    register(StereoDefects())
