@@ -49,6 +49,8 @@ def plan(
     out: Path = typer.Option(..., "-o", "--out", help="output directory (replaced atomically)"),
     resolution: float = typer.Option(0.2, "--resolution", help="grid cell size in m"),
     seed: int = typer.Option(0, "--seed", help="random seed (sampling planners)"),
+    sweep: Optional[Path] = typer.Option(None, "--sweep", help="roadtwin sweep output: decide bypass vs cross per defect on the route"),
+    max_g: float = typer.Option(1.0, "--max-g", help="with --sweep: cross when g at the recommended speed is at most this"),
 ) -> None:
     """Plan a path around road defects: grid maps of the stage, planner(s), metrics, plots, USD curve."""
     from .planning import PlanFailure, plan_stage
@@ -59,7 +61,7 @@ def plan(
         raise RoadtwinError(f"--seed must be >= 0, got {seed}")
     names = None if all_planners else [planner or "hybrid_astar"]
     run = plan_stage(stage, out, planners=names, start=start, goal=goal, collision=collision,
-                     resolution=resolution, seed=seed)
+                     resolution=resolution, seed=seed, sweep=sweep, max_g=max_g)
     if not console.is_terminal:  # a log or a pipe: do not squeeze the table into 80 columns
         console.width = max(console.width, 130)
     s, g = run.start, run.goal
@@ -69,6 +71,15 @@ def plan(
     for r in run.results:
         if isinstance(r, PlanFailure):
             err_console.print(f"warning: {r.planner}: {r.reason}", highlight=False, soft_wrap=True)
+    if sweep is not None:
+        table = Table(title=f"defects on the route: bypass or cross (sweep {sweep}, max g {max_g:g})")
+        for col in ("defect", "type", "decision", "speed km/h", "g", "why"):
+            table.add_column(col)
+        for d in run.decisions:
+            table.add_row(d.defect, d.defect_type, d.decision, "-" if d.speed_kmh is None else f"{d.speed_kmh:g}",
+                          "-" if d.g_at_speed is None else f"{d.g_at_speed:.2f}", d.reason)
+        console.print(table)
+        console.print(f"wrote {run.outdir}/decisions.csv, decisions.json", highlight=False)
     if run.composed:
         console.print(f"composed {run.town}", highlight=False)
     if names is None:

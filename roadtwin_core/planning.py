@@ -840,12 +840,14 @@ class PlanRun:
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
     goal: tuple[float, float, float] = (0.0, 0.0, 0.0)
     composed: bool = False
+    decisions: list = field(default_factory=list)   # bypass / cross per defect on the route (--sweep)
 
 
 def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str] | None = None,
                start: str | Sequence[float] | None = None, goal: str | Sequence[float] | None = None,
                collision: str = "wheel", resolution: float = 0.2, seed: int = 0,
-               vehicle: Vehicle | None = None, pm=None, validate: bool = True) -> PlanRun:
+               vehicle: Vehicle | None = None, pm=None, validate: bool = True,
+               sweep: str | Path | None = None, max_g: float = 1.0) -> PlanRun:
     """``roadtwin plan``: grid maps of a composed town (or a layout, composed first into
     ``OUTDIR/town``), one or more planners, and their outputs, written atomically to ``outdir``.
 
@@ -883,6 +885,12 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
     composed = not scene.colliders
     if composed and not scene.roads:
         raise RoadtwinError(f"{stage}: neither a composed town (no /Collision meshes) nor a layout (no road segments)")
+    if sweep is not None:
+        from .route_decisions import load_recommendations
+
+        load_recommendations(sweep)  # a bad sweep folder fails before any work
+        if not (math.isfinite(max_g) and max_g > 0):
+            raise RoadtwinError(f"--max-g must be a positive number, got {max_g}")
     start = _pose_arg(start, scene.metadata, "planStart", "start", stage)
     goal = _pose_arg(goal, scene.metadata, "planGoal", "goal", stage)
 
@@ -903,6 +911,11 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
         ref = reference_path(grid, start, goal)  # raises when the goal is not connected
         ref_len = polyline_length(ref)
         run = PlanRun(outdir, outdir / "town" / "town.usda" if composed else town, grid, [], start, goal, composed)
+        if sweep is not None:
+            from .route_decisions import decide, write_decisions
+
+            run.decisions = decide(grid, ref, vehicle, sweep, max_g)
+            write_decisions(tmp, run.decisions)
         for name in names:
             t0 = time.perf_counter()
             try:
