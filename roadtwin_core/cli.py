@@ -55,6 +55,7 @@ def compose(
     executor: str = typer.Option("local", "--executor", help="local (process pool) | serial | ray"),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local one)"),
     workers: Optional[int] = typer.Option(None, "--workers", help="worker processes (default: all cores)"),
+    library: Optional[Path] = typer.Option(None, "--library", help="folder of defect assets mixed with the parametric models"),
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from .compose import compose as run_compose
@@ -72,7 +73,7 @@ def compose(
 
         result = run_compose(layout, out, defects=defects, seed=seed, merger=merger, surface=surface,
                              progress=report, preview=preview, executor=executor, ray_address=ray_address,
-                             workers=workers)
+                             workers=workers, library_dir=library)
     s = result.summary
     table = Table(title=f"composed {result.town}")
     table.add_column("item")

@@ -51,6 +51,25 @@ def build_library(rules: ComposeRules, pm: PluginManager) -> dict[str, list[Defe
     return library
 
 
+def add_library_folder(library: dict[str, list[DefectModel]], rules: ComposeRules, folder: Path) -> ComposeRules:
+    """Mix the defect assets of a library folder (reconstructed or hand-made models) into the
+    parametric ones: each joins its type's pool; a type the rules do not weight gets weight 1."""
+    from .usd.library import read_defect_asset
+
+    if not folder.is_dir():
+        raise RoadtwinError(f"{folder}: defect library folder not found")
+    files = sorted(p for p in folder.glob("*.usda") if not p.name.endswith(".geom.usda"))
+    if not files:
+        raise RoadtwinError(f"{folder}: no defect assets (*.usda) in the library folder")
+    weights = dict(rules.type_weights)
+    for f in files:
+        model = read_defect_asset(f)
+        model.name = f"lib_{model.name}"
+        library.setdefault(model.defect_type, []).append(model)
+        weights.setdefault(model.defect_type, 1.0)
+    return rules.replace(type_weights=weights)
+
+
 def fixed_placements(layout: TownLayout, pm: PluginManager) -> list[Placement]:
     """The layout's pinned defects, each generated from its own type, params and seed."""
     out = []
@@ -66,11 +85,13 @@ def fixed_placements(layout: TownLayout, pm: PluginManager) -> list[Placement]:
 def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None = None, seed: int | None = None,
             merger: str | None = None, surface: str | None = None, progress: Progress | None = None,
             pm: PluginManager | None = None, preview: bool = True, executor: str = "local",
-            ray_address: str | None = None, workers: int | None = None) -> ComposeResult:
+            ray_address: str | None = None, workers: int | None = None,
+            library_dir: str | Path | None = None) -> ComposeResult:
     t0 = time.perf_counter()
     layout_path = Path(layout_path)
     layout = read_layout(layout_path)
-    rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface).check(
+    rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface,
+                                 library=str(library_dir) if library_dir else None).check(
         f"{layout_path}")
     if defects is None and rules.density_per_km > 0:
         rules = rules.replace(defect_count=int(round(rules.density_per_km * lane_length_km(layout.segments, rules.kinds))))
@@ -80,6 +101,10 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     report = progress or (lambda *_: None)
 
     library = build_library(rules, pm) if rules.defect_count else {}
+    if rules.library and rules.defect_count:
+        folder = Path(library_dir) if library_dir else (layout_path.parent / rules.library)
+        rules = add_library_folder(library, rules, folder)
+        layout.rules = rules
     fixed = fixed_placements(layout, pm)
     rng = np.random.default_rng(rules.seed)
     placements = place_defects(layout.segments, library, rules, rng, str(layout_path), fixed)

@@ -215,6 +215,7 @@ class ComposeRules:
     road_edge_m: float = 0.5
     wheel_path_weight: float = 2.0   # defect density in wheel paths relative to the rest of a lane
     density_per_km: float = 0.0      # > 0: defect count = density x km of lane centerline
+    library: str = ""                # folder of defect assets (e.g. reconstructed) drawn with the parametric ones
 
     def replace(self, **changes: Any) -> "ComposeRules":
         changes = {k: v for k, v in changes.items() if v is not None}

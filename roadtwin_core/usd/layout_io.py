@@ -22,7 +22,8 @@ PLACEMENT = "roadtwin:placement:"
 META = "roadtwin:layout:"
 _RULE_ATTRS = {"defectCount": "defect_count", "seed": "seed", "surface": "surface", "merger": "merger",
                "modelsPerType": "models_per_type", "edgeMarginM": "edge_margin_m", "spacingM": "spacing_m",
-               "roadEdgeM": "road_edge_m", "wheelPathWeight": "wheel_path_weight", "densityPerKm": "density_per_km"}
+               "roadEdgeM": "road_edge_m", "wheelPathWeight": "wheel_path_weight", "densityPerKm": "density_per_km",
+               "library": "library"}
 
 
 def open_layout_stage(path: Path) -> Usd.Stage:
