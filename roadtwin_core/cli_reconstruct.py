@@ -1,8 +1,9 @@
-"""``roadtwin reconstruct defects``: stereo defect reconstruction (the paper's fine stream).
+"""``roadtwin reconstruct defects``: stereo defect reconstruction (the paper's fine stream);
+``roadtwin reconstruct surface``: LiDAR road surface reconstruction (the coarse stream).
 
 Registered in :mod:`roadtwin_core.cli` with ``app.add_typer(reconstruct_app, name="reconstruct")``.
-The work is done by the reconstructor plugin named ``stereo_defects``, asked for through the
-plugin manager (the core never imports a plugin). Bad input raises
+The work is done by the reconstructor plugins named ``stereo_defects`` and ``lidar_surface``,
+asked for through the plugin manager (the core never imports a plugin). Bad input raises
 :class:`~roadtwin_core.RoadtwinError`, printed by ``roadtwin``'s ``main`` as one line (exit 2),
 and nothing is written.
 """
@@ -71,3 +72,39 @@ def reconstruct_defects(
         a = m.attributes()
         console.print(f"  {m.name}: depth {a['depthM'] * 100:.1f} cm, area {a['areaM2']:.3f} m2, "
                       f"volume {a['volumeM3'] * 1000:.2f} L")
+
+
+@reconstruct_app.command("surface")
+def reconstruct_surface(
+    frames: list[Path] = typer.Argument(..., help="point cloud frames (.ply, .pcd, .npz with 'points' [+ 'labels'], .npy)"),
+    poses: Optional[Path] = typer.Option(None, "--poses", "-p", help="per-frame sensor-to-world poses: KITTI (3x4 "
+                                         "per line) or TUM (t x y z qx qy qz qw); one frame without = world coordinates"),
+    out: Path = typer.Option(..., "-o", "--out", help="surface library asset (.usda), a Z-up mesh in meters"),
+    road_labels: str = typer.Option("40,44", "--road-labels", help="label values kept as road in labelled frames "
+                                    "(SemanticKITTI road, parking; 'all' keeps every point); frames without labels are all road"),
+    voxel: float = typer.Option(0.05, "--voxel", help="vertex spacing (XY voxel size) in m"),
+    radius: float = typer.Option(0.08, "--radius", help="elevation fit radius in m"),
+    no_align: bool = typer.Option(False, "--no-align", help="keep the input Z (no RANSAC ground plane to Z-up)"),
+    reconstructor: str = typer.Option("lidar_surface", "--reconstructor", help="reconstructor plugin"),
+) -> None:
+    """LiDAR frames + poses -> road surface library asset (coarse stream)."""
+    from .params import make_params
+    from .plugins import get_plugin_manager
+
+    for p in [*frames, *([poses] if poses is not None else [])]:
+        if not p.exists():
+            raise RoadtwinError(f"{p}: no such file")
+    if out.suffix not in (".usda", ".usd", ".usdc"):
+        raise RoadtwinError(f"{out}: the surface asset must be a .usda, .usd or .usdc file")
+    labels = (None if road_labels.strip().lower() in ("", "all", "none")
+              else [int(v) for v in _floats(road_labels, tuple(range(1, 257)), "--road-labels")])
+    rec = get_plugin_manager().get("reconstructors", reconstructor)
+    if getattr(rec, "produces", None) != "surface":
+        raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce a surface")
+    params = make_params(rec.Params, {"voxel_m": voxel, "radius_m": radius, "align": not no_align}, reconstructor)
+    surface = rec.run({"frames": list(frames), "poses": poses, "road_labels": labels}, params)
+    path = rec.write(surface, out)
+    lo, hi = surface.vertices.min(axis=0), surface.vertices.max(axis=0)
+    console.print(f"wrote {path}: {len(surface.vertices)} vertices, {len(surface.faces)} triangles, "
+                  f"{hi[0] - lo[0]:.2f} x {hi[1] - lo[1]:.2f} m, z {lo[2]:+.3f}..{hi[2]:+.3f} m "
+                  f"from {len(frames)} frame(s)")
