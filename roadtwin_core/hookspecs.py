@@ -85,3 +85,12 @@ def roadtwin_register_exporters(register):
 
     Each has ``name`` (the format), ``suffix`` and ``export(stage_path, out_path) -> Path``.
     """
+
+
+@hookspec
+def roadtwin_register_surface_sources(register):
+    """Elevation sources for ``--surface SCHEME:ARG`` beyond the core's flat / iso8608 / usd.
+
+    Each has ``name`` (the scheme, e.g. "crg") and ``load(arg, bounds, seed) -> SurfaceModel``
+    where ``arg`` is everything after the first colon (a path may contain colons).
+    """

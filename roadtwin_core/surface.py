@@ -193,9 +193,12 @@ def iso8608_surface(road_class: str, bounds: tuple[float, float, float, float], 
 
 def parse_surface(spec: str, bounds: tuple[float, float, float, float], seed: int,
                   terrain: np.ndarray | None = None) -> SurfaceModel:
-    """``flat``, ``flat:Z``, ``iso8608:C`` or ``iso8608:C:DX``; adds the layout's terrain if any."""
-    parts = spec.strip().split(":")
-    kind = parts[0].lower()
+    """``flat``, ``flat:Z``, ``iso8608:C[:DX]``, ``usd:SURFACE.usda`` (a surface asset's mesh
+    vertices, through the k-d tree) or a plugin's ``SCHEME:ARG``; adds the layout's terrain if any."""
+    spec = spec.strip()
+    kind, _, arg = spec.partition(":")
+    kind = kind.lower()
+    parts = spec.split(":")
     base: SurfaceModel | None = SampledSurface(terrain) if terrain is not None and len(terrain) else None
     try:
         if kind == "flat":
@@ -205,8 +208,35 @@ def parse_surface(spec: str, bounds: tuple[float, float, float, float], seed: in
                 raise RoadtwinError("surface: iso8608 needs a class, e.g. iso8608:C")
             dx = float(parts[2]) if len(parts) > 2 else 0.1
             rough = iso8608_surface(parts[1], bounds, seed, dx=dx)
+        elif kind == "usd":
+            rough = usd_mesh_surface(arg)
         else:
-            raise RoadtwinError(f"surface: unknown source {spec!r} (use flat, flat:Z, iso8608:CLASS[:DX])")
+            from .plugins import get_plugin_manager
+
+            sources = get_plugin_manager().registry("surface_sources")
+            if kind not in sources:
+                known = ", ".join(["flat, flat:Z, iso8608:CLASS[:DX], usd:PATH"] + [f"{k}:ARG" for k in sorted(sources)])
+                raise RoadtwinError(f"surface: unknown source {spec!r} (use {known})")
+            rough = sources[kind].load(arg, bounds, seed)
     except ValueError:
         raise RoadtwinError(f"surface: cannot parse {spec!r}") from None
     return rough if base is None else SumSurface(base, rough)
+
+
+def usd_mesh_surface(path: str) -> SampledSurface:
+    """Elevation from a surface asset (e.g. ``roadtwin reconstruct surface`` output): the
+    world-space vertices of its meshes, queried through the k-d tree."""
+    from pathlib import Path
+
+    from pxr import Usd, UsdGeom
+
+    from .usd.stage import read_mesh
+
+    p = Path(path)
+    if not p.exists():
+        raise RoadtwinError(f"surface: {path}: no such file")
+    stage = Usd.Stage.Open(str(p))
+    pts = [read_mesh(UsdGeom.Mesh(prim))[0] for prim in stage.Traverse() if prim.IsA(UsdGeom.Mesh)]
+    if not pts:
+        raise RoadtwinError(f"surface: {path}: has no mesh")
+    return SampledSurface(np.concatenate(pts))

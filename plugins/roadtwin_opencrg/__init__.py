@@ -19,3 +19,17 @@ __all__ = ["CRG", "CrgSurface", "CrgExporter", "drape", "fill_missing", "lane_ch
 @hookimpl
 def roadtwin_register_exporters(register):
     register(CrgExporter())
+
+
+class CrgSurfaceSource:
+    """``--surface crg:PATH``: an OpenCRG road as the town's elevation source."""
+
+    name = "crg"
+
+    def load(self, arg, bounds, seed):
+        return CrgSurface.from_file(arg)
+
+
+@hookimpl
+def roadtwin_register_surface_sources(register):
+    register(CrgSurfaceSource())
