@@ -331,8 +331,7 @@ def plot_crossing(path: Path, defect: str, specs: list[RunSpec], tr: Traces, tr_
 
 def write_rerun(path: Path, specs: list[RunSpec], tr: Traces, limit: int = 16, every: int = 5) -> str:
     """Log az, wx, wy of the first ``limit`` runs (every ``every``-th IMU sample) to a .rrd file;
-    says why when it cannot. (Written against rerun-sdk >= 0.23, with fallbacks for older
-    names; not exercised by the tests here, where rerun-sdk is not installed.)"""
+    says why when it cannot (rerun-sdk >= 0.23, with fallbacks for older names; tested with 0.41)."""
     try:
         import rerun as rr
     except ImportError:
