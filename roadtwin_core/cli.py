@@ -15,7 +15,7 @@ from .errors import RoadtwinError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="roadtwin: simulation-ready digital twins of roads with their defects, as OpenUSD.")
-console = Console()
+console = Console(soft_wrap=True)  # paths in messages must not be broken across lines
 err_console = Console(stderr=True)
 
 

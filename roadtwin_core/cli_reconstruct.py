@@ -84,16 +84,48 @@ def reconstruct_surface(
                                     "(SemanticKITTI road, parking; 'all' keeps every point); frames without labels are all road"),
     voxel: float = typer.Option(0.05, "--voxel", help="vertex spacing (XY voxel size) in m"),
     radius: float = typer.Option(0.08, "--radius", help="elevation fit radius in m"),
+    masks: Optional[list[Path]] = typer.Option(None, "--masks", help="per-frame road masks (PNG, non-zero = road): "
+                                               "a folder (its images, sorted) or one file per frame (repeat the "
+                                               "option), matched to the frames in order; needs --K and --cam-from-lidar"),
+    K: Optional[str] = typer.Option(None, "--K", help="mask camera intrinsics fx,fy,cx,cy (pixels)"),
+    cam_from_lidar: Optional[Path] = typer.Option(None, "--cam-from-lidar", help="text file with the 4x4 "
+                                                  "camera-from-LiDAR transform (one for all frames)"),
     no_align: bool = typer.Option(False, "--no-align", help="keep the input Z (no RANSAC ground plane to Z-up)"),
     reconstructor: str = typer.Option("lidar_surface", "--reconstructor", help="reconstructor plugin"),
 ) -> None:
-    """LiDAR frames + poses -> road surface library asset (coarse stream)."""
+    """LiDAR frames + poses -> road surface library asset (coarse stream).
+
+    With --masks, each frame's points are projected into its mask (camera --K, --cam-from-lidar)
+    and only those landing on a road pixel are kept; points behind the camera or outside the
+    image are dropped, and a frame with no road point left is an error naming it."""
     from .params import make_params
     from .plugins import get_plugin_manager
 
-    for p in [*frames, *([poses] if poses is not None else [])]:
+    for p in [*frames, *([poses] if poses is not None else []), *(masks or []),
+              *([cam_from_lidar] if cam_from_lidar is not None else [])]:
         if not p.exists():
             raise RoadtwinError(f"{p}: no such file")
+    mask_files: Optional[list[Path]] = None
+    if masks:
+        mask_files = []
+        for m in masks:
+            if m.is_dir():
+                found = sorted(q for q in m.iterdir() if q.is_file() and q.suffix.lower() in (".png", ".jpg", ".jpeg",
+                                                                                            ".bmp", ".tif", ".tiff"))
+                if not found:
+                    raise RoadtwinError(f"{m}: no mask images (.png) in the folder")
+                mask_files += found
+            else:
+                mask_files.append(m)
+        if len(mask_files) != len(frames):
+            raise RoadtwinError(f"--masks: {len(mask_files)} masks for {len(frames)} frames (one mask per frame)")
+        if K is None:
+            raise RoadtwinError("--masks needs the camera intrinsics --K fx,fy,cx,cy")
+        if cam_from_lidar is None:
+            raise RoadtwinError("--masks needs the camera-from-LiDAR extrinsic --cam-from-lidar FILE (4x4)")
+    elif K is not None or cam_from_lidar is not None:
+        raise RoadtwinError("--K and --cam-from-lidar are only used with --masks")
+    k = _floats(K, (4,), "--K")
     if out.suffix not in (".usda", ".usd", ".usdc"):
         raise RoadtwinError(f"{out}: the surface asset must be a .usda, .usd or .usdc file")
     labels = (None if road_labels.strip().lower() in ("", "all", "none")
@@ -102,7 +134,10 @@ def reconstruct_surface(
     if getattr(rec, "produces", None) != "surface":
         raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce a surface")
     params = make_params(rec.Params, {"voxel_m": voxel, "radius_m": radius, "align": not no_align}, reconstructor)
-    surface = rec.run({"frames": list(frames), "poses": poses, "road_labels": labels}, params)
+    inputs = {"frames": list(frames), "poses": poses, "road_labels": labels}
+    if mask_files is not None:
+        inputs.update(masks=mask_files, K=k, cam_from_lidar=cam_from_lidar)
+    surface = rec.run(inputs, params)
     path = rec.write(surface, out)
     lo, hi = surface.vertices.min(axis=0), surface.vertices.max(axis=0)
     console.print(f"wrote {path}: {len(surface.vertices)} vertices, {len(surface.faces)} triangles, "

@@ -212,3 +212,153 @@ def test_cli_reconstruct_surface(monkeypatch, saved, tmp_path):
     assert isinstance(res.exception, RoadtwinError) and "10 poses for 3 frames" in str(res.exception)
     assert "\n" not in str(res.exception)
     assert not bad_out.exists() and not list(tmp_path.glob(".*tmp*"))
+
+
+# ---------------------------------------------------------------- semantic masks (Grounded-SAM stand-in)
+EDGE_Y = 0.8      # road for y < EDGE_Y; a sidewalk raised by CURB_M beyond it
+CURB_M = 0.15
+CAM_K = (300.0, 300.0, 320.0, 240.0)
+CAM_SIZE = (480, 640)
+
+
+def _cam_from_lidar() -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", [2.0, -1.5, 1.0], degrees=True).as_matrix()
+    T[:3, 3] = [0.10, -0.05, 0.02]
+    return T
+
+
+def _road_masks(poses: np.ndarray, T_cl: np.ndarray) -> list[np.ndarray]:
+    """The true road polygon (z = 0) projected into the camera of every frame."""
+    import cv2
+
+    fx, fy, cx, cy = CAM_K
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    poly = np.array([[-2.0, -2.0, 0.0], [5.0, -2.0, 0.0], [5.0, EDGE_Y, 0.0], [-2.0, EDGE_Y, 0.0]])
+    masks = []
+    for P in poses:
+        M = T_cl @ np.linalg.inv(P)
+        pc = poly @ M[:3, :3].T + M[:3, 3]
+        assert (pc[:, 2] > 0).all()
+        uv = (pc @ K.T)[:, :2] / pc[:, 2:3]
+        m = np.zeros(CAM_SIZE, np.uint8)
+        cv2.fillPoly(m, [np.round(uv).astype(np.int32)], 255)
+        masks.append(m)
+    return masks
+
+
+@pytest.fixture(scope="module")
+def curb_scene(scene, tmp_path_factory):
+    """The class-C road of ``scene`` with a 15 cm raised sidewalk at y > EDGE_Y, scanned, plus road
+    masks of a camera beside the LiDAR, all saved as files."""
+    import cv2
+
+    v, f, _, _ = scene
+    vc = v.copy()
+    vc[vc[:, 1] > EDGE_Y + 1e-6, 2] += CURB_M
+    frames, poses = rl.simulate_scans(vc, f, rl.path_poses(10, seed=0), rl.RosetteScanner(range_sigma_m=0.02),
+                                      seed=100)
+    folder = tmp_path_factory.mktemp("curb")
+    paths, pose_path = rl.save_frames(folder / "frames", frames, poses, fmt="npz", pose_format="kitti")
+    T_cl = _cam_from_lidar()
+    (folder / "masks").mkdir()
+    mask_paths = []
+    for i, m in enumerate(_road_masks(poses, T_cl)):
+        mp = folder / "masks" / f"mask_{i:03d}.png"
+        assert cv2.imwrite(str(mp), m)
+        mask_paths.append(mp)
+    ext = folder / "cam_from_lidar.txt"
+    np.savetxt(ext, T_cl)
+    return {"paths": paths, "poses": pose_path, "masks": mask_paths, "ext": ext, "T": T_cl, "frames": frames,
+            "folder": folder}
+
+
+def test_mask_road_points_projection():
+    K = rl.intrinsics((100.0, 100.0, 2.0, 1.0))
+    mask = np.zeros((3, 5), bool)
+    mask[1, 3] = True
+    pts = np.array([[0.01, 0.0, 1.0],    # u = 3, v = 1: road
+                    [0.0, 0.0, 1.0],     # u = 2: not road
+                    [-0.01, 0.0, -1.0],  # behind the camera (would project onto u = 3)
+                    [1.0, 0.0, 1.0]])    # outside the image
+    np.testing.assert_array_equal(rl.mask_road_points(pts, mask, K, np.eye(4)), [True, False, False, False])
+
+
+def test_masks_exclude_raised_sidewalk(lidar, scene, curb_scene):
+    v, f, _, _ = scene
+    c = curb_scene
+    masked = lidar.run({"frames": c["paths"], "poses": c["poses"], "masks": c["masks"], "K": CAM_K,
+                        "cam_from_lidar": c["ext"]})
+    wv = masked.world_vertices()
+    # Kept points reach ~2 cm past the edge (range noise along oblique rays; the 2 cm GT ramp).
+    assert wv[:, 1].max() < EDGE_Y + 0.05, wv[:, 1].max()  # no vertex on the sidewalk
+    near = wv[:, 1] > EDGE_Y - 0.2
+    assert near.sum() > 50 and np.abs(wv[near, 2]).max() < 0.05  # the road by the curb stays at road level
+    r = evaluate_surface(wv, masked.faces, v, f)  # the ground truth without the sidewalk
+    print(r)
+    assert r["vertex_rmse_m"] <= RMSE_FLOOR_M, r
+    assert r["grid_rmse_m"] <= RMSE_FLOOR_M, r
+    # Control: without the masks the sidewalk is reconstructed (so the masks did the work above).
+    plain = lidar.run({"frames": c["paths"], "poses": c["poses"]}).world_vertices()
+    side = plain[:, 1] > EDGE_Y + 0.05
+    assert side.sum() > 50 and np.median(plain[side, 2]) > 0.1
+
+
+def test_masks_bad_input(lidar, curb_scene, tmp_path):
+    c = curb_scene
+    base = {"frames": c["paths"][:2], "poses": rl.load_poses(c["poses"])[:2], "masks": c["masks"][:2],
+            "K": CAM_K, "cam_from_lidar": c["T"]}
+    with pytest.raises(RoadtwinError, match="1 masks for 2 frames"):
+        lidar.run({**base, "masks": c["masks"][:1]})
+    with pytest.raises(RoadtwinError, match="intrinsics K"):
+        lidar.run({**base, "K": None})
+    with pytest.raises(RoadtwinError, match="extrinsic"):
+        lidar.run({**base, "cam_from_lidar": None})
+    bad_ext = tmp_path / "ext.txt"
+    bad_ext.write_text("1 0 0\n0 1 0\n")
+    with pytest.raises(RoadtwinError, match="ext.txt: the camera-from-LiDAR extrinsic must be a 4x4"):
+        lidar.run({**base, "cam_from_lidar": bad_ext})
+    # A frame with no road: its mask is empty.
+    empty = np.zeros(CAM_SIZE, np.uint8)
+    with pytest.raises(RoadtwinError) as exc:
+        lidar.run({**base, "masks": [c["masks"][0], empty]})
+    assert str(exc.value).startswith(f"{c['paths'][1]}: no road points") and "\n" not in str(exc.value)
+    # A camera looking the other way: every point is behind it.
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])
+    with pytest.raises(RoadtwinError, match="frame_000.npz: no road points"):
+        lidar.run({**base, "cam_from_lidar": flip})
+
+
+def test_cli_reconstruct_surface_masks(monkeypatch, curb_scene, tmp_path):
+    import typer
+    from typer.testing import CliRunner
+
+    from roadtwin_core import plugins as plugins_mod
+    from roadtwin_core.cli_reconstruct import reconstruct_app
+
+    pm = PluginManager(load_entry_points=False)
+    pm.register(rl, name="lidar")
+    monkeypatch.setattr(plugins_mod, "get_plugin_manager", lambda: pm)
+    app = typer.Typer()
+    app.add_typer(reconstruct_app, name="reconstruct")
+    c = curb_scene
+    k = ",".join(str(x) for x in CAM_K)
+    common = [*map(str, c["paths"]), "--poses", str(c["poses"])]
+    out = tmp_path / "surface.usda"
+    res = CliRunner().invoke(app, ["reconstruct", "surface", *common, "--masks", str(c["folder"] / "masks"),
+                                   "--K", k, "--cam-from-lidar", str(c["ext"]), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    wv = rl.read_surface_asset(out).world_vertices()
+    assert wv[:, 1].max() < EDGE_Y + 0.05
+    bad_out = tmp_path / "bad.usda"
+    for extra, msg in [(["--masks", str(c["masks"][0]), "--K", k, "--cam-from-lidar", str(c["ext"])],
+                        "1 masks for 10 frames"),
+                       (["--masks", str(c["folder"] / "masks"), "--cam-from-lidar", str(c["ext"])], "--K"),
+                       (["--masks", str(c["folder"] / "masks"), "--K", k], "--cam-from-lidar")]:
+        res = CliRunner().invoke(app, ["reconstruct", "surface", *common, *extra, "-o", str(bad_out)])
+        assert res.exit_code != 0
+        assert isinstance(res.exception, RoadtwinError) and msg in str(res.exception), res.exception
+        assert "\n" not in str(res.exception)
+    assert not bad_out.exists() and not list(tmp_path.glob(".*tmp*"))

@@ -160,3 +160,63 @@ def test_cli_reconstruct_defects(monkeypatch, tmp_path):
                                    "--transformed", "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert (out / "mask.png").exists() and (out / "instances.json").exists()
+
+
+def test_bad_input_files_one_line_nothing_written(monkeypatch, tmp_path):
+    """Bad stereo input through ``roadtwin reconstruct defects``: one RoadtwinError line naming the
+    file; no new output folder, and an earlier one left exactly as it was."""
+    import cv2
+    import typer
+    from typer.testing import CliRunner
+
+    from roadtwin_core import plugins as plugins_mod
+    from roadtwin_core.cli_reconstruct import reconstruct_app
+
+    pm = PluginManager(load_entry_points=False)
+    pm.register(rs, name="stereo")
+    monkeypatch.setattr(plugins_mod, "get_plugin_manager", lambda: pm)
+    app = typer.Typer()
+    app.add_typer(reconstruct_app, name="reconstruct")
+    runner = CliRunner()
+
+    earlier = tmp_path / "earlier"
+    res = runner.invoke(app, ["reconstruct", "defects", "--disparity", str(DATA / "disp_tg" / "03.png"),
+                              "--transformed", "-o", str(earlier)])
+    assert res.exit_code == 0, res.output
+    before = {p.name: p.read_bytes() for p in earlier.iterdir()}
+
+    inp = tmp_path / "in"
+    inp.mkdir()
+    rng = np.random.default_rng(0)
+    assert cv2.imwrite(str(inp / "left.png"), rng.integers(0, 255, (120, 160), dtype=np.uint8))
+    assert cv2.imwrite(str(inp / "right.png"), rng.integers(0, 255, (120, 160), dtype=np.uint8))
+    assert cv2.imwrite(str(inp / "right_short.png"), rng.integers(0, 255, (100, 160), dtype=np.uint8))
+    assert cv2.imwrite(str(inp / "no_road.png"), np.zeros((120, 160), np.uint16))  # every pixel invalid
+    sparse = np.zeros((120, 160), np.uint16)
+    sparse[:3, :] = 40 * 256  # 2.5 % valid pixels
+    assert cv2.imwrite(str(inp / "sparse.png"), sparse)
+    sc = BowlScene(width=160, height=120, f=175.0)
+    assert cv2.imwrite(str(inp / "disp.png"), np.round(sc.disparity() * 256).astype(np.uint16))
+    calib = ["--K", f"{sc.f},{sc.f},{sc.K[0, 2]},{sc.K[1, 2]}", "--baseline", "0.12"]
+    pair = ["--left", str(inp / "left.png"), "--right", str(inp / "right.png")]
+
+    cases = [
+        (["--left", str(inp / "left.png"), "--right", str(inp / "right_short.png"), *calib],
+         ["right_short.png", "differ in size", "160x100", "160x120"]),
+        (pair, ["left.png", "calibration", "K and baseline missing"]),
+        ([*pair, *calib[:2]], ["left.png", "calibration", "baseline missing"]),
+        ([*pair, *calib[2:]], ["left.png", "calibration", "K missing"]),
+        (["--disparity", str(inp / "disp.png"), "--disparity-scale", "256"], ["disp.png", "calibration"]),
+        (["--disparity", str(inp / "no_road.png"), *calib], ["no_road.png", "no valid disparity", "no road"]),
+        (["--disparity", str(inp / "sparse.png"), "--disparity-scale", "256", *calib], ["sparse.png", "no road"]),
+    ]
+    for args, expect in cases:
+        for out in (tmp_path / "new_out", earlier):
+            res = runner.invoke(app, ["reconstruct", "defects", *args, "-o", str(out)])
+            assert res.exit_code != 0, (args, res.output)
+            msg = str(res.exception)
+            assert isinstance(res.exception, RoadtwinError), (args, repr(res.exception))
+            assert "\n" not in msg and all(e in msg for e in expect), (args, msg)
+    assert not (tmp_path / "new_out").exists()
+    assert {p.name: p.read_bytes() for p in earlier.iterdir()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["earlier", "in"]  # no temporary folders left

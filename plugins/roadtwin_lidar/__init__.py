@@ -12,7 +12,12 @@ Inputs of ``reconstruct(inputs, params)`` (a dict): ``frames`` (paths, or (N, 3)
 ``poses`` (a KITTI / TUM pose file path, or an (F, 4, 4) array; omitted with one frame = world
 coordinates), ``labels`` (optional per-frame label arrays for array frames), ``road_labels``
 (label values kept as road; default 40, 44 = SemanticKITTI road, parking; frames without labels
-are all road), ``source`` (recorded on the asset). Masks projected from cameras are not supported.
+are all road), ``masks`` (optional: one road mask per frame, PNG paths or (H, W) arrays, non-zero =
+road, e.g. Grounded-SAM's road/pavement output) with ``K`` (fx, fy, cx, cy or 3x3) and
+``cam_from_lidar`` (4x4 array or text file; one for all frames): each frame's sensor-frame points
+are projected into its mask and kept where they land on road (behind the camera or outside the
+image: dropped; with labels too, a point must pass both); a frame left with no road point is a
+:class:`~roadtwin_core.RoadtwinError` naming the frame and mask. ``source`` is recorded on the asset.
 
 The result is a :class:`LidarSurface` (a :class:`~roadtwin_core.SurfaceModel`): a Z-up mesh in
 meters in the ground-aligned frame, plus the 4x4 ``alignment`` (input world -> surface frame).
@@ -33,13 +38,14 @@ import numpy as np
 
 from roadtwin_core import RoadtwinError, SampledSurface, SurfaceModel, check_params, field, hookimpl
 
-from .reconstruct import (apply, fuse_frames, ground_alignment, load_frame, load_poses, local_heights,
-                          surface_mesh)
+from .reconstruct import (apply, fuse_frames, ground_alignment, intrinsics, load_extrinsic, load_frame, load_mask,
+                          load_poses, local_heights, mask_road_points, surface_mesh)
 from .simulate import (RosetteScanner, path_poses, pothole_road_mesh, raycasting_scene, rosette_directions,
                        save_frames, simulate_scans, vertical_heights)
 
 __all__ = ["LidarSurfaceReconstructor", "LidarSurface", "LidarSurfaceParams", "RosetteScanner", "apply",
-           "fuse_frames", "ground_alignment", "load_frame", "load_poses", "local_heights", "path_poses",
+           "fuse_frames", "ground_alignment", "intrinsics", "load_extrinsic", "load_frame", "load_mask", "load_poses",
+           "local_heights", "mask_road_points", "path_poses",
            "pothole_road_mesh", "raycasting_scene", "read_surface_asset", "rosette_directions", "save_frames",
            "simulate_scans", "surface_mesh", "vertical_heights", "write_surface_asset"]
 
@@ -95,6 +101,27 @@ class LidarSurface(SurfaceModel):
         return apply(np.linalg.inv(self.alignment), self.vertices)
 
 
+def _apply_masks(frames, names, masks, K, cam_from_lidar, who: str):
+    """Keep the points of each frame that project onto road pixels of its mask."""
+    if len(masks) != len(frames):
+        raise RoadtwinError(f"{who}: {len(masks)} masks for {len(frames)} frames (one mask per frame)")
+    if K is None:
+        raise RoadtwinError(f"{who}: semantic masks need the camera intrinsics K (fx, fy, cx, cy)")
+    if cam_from_lidar is None:
+        raise RoadtwinError(f"{who}: semantic masks need the camera-from-LiDAR extrinsic (4x4)")
+    Km = intrinsics(K)
+    T = load_extrinsic(cam_from_lidar)
+    out = []
+    for i, ((pts, lab), name, m) in enumerate(zip(frames, names, masks)):
+        mask, mname = load_mask(m, f"mask {i}")
+        keep = mask_road_points(pts, mask, Km, T)
+        if not keep.any():
+            raise RoadtwinError(f"{name}: no road points: none of its {len(pts)} points projects onto a road "
+                                f"pixel of {mname} (check the mask, K, the extrinsic and the frame order)")
+        out.append((pts[keep], None if lab is None else lab[keep]))
+    return out
+
+
 def _safe_name(stem: str) -> str:
     s = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "surface"
     return s if s[0].isalpha() else f"s{s}"
@@ -133,6 +160,10 @@ class LidarSurfaceReconstructor:
                 name = str(f)
                 frames.append(load_frame(f))
             names.append(name)
+        masks_in = inputs.get("masks")
+        if masks_in is not None:
+            frames = _apply_masks(frames, names, list(masks_in), inputs.get("K"), inputs.get("cam_from_lidar"),
+                                  self.name)
         poses_in = inputs.get("poses")
         poses_name = "poses"
         if poses_in is None:

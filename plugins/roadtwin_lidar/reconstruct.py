@@ -5,8 +5,11 @@ Steps (the paper's hierarchical road model creator, coarse stream):
 1. read frames (PLY / PCD through open3d, NPZ with ``points`` and optional ``labels``) and poses
    (KITTI: 12 numbers per line, a 3x4 sensor-to-world matrix; TUM: ``t x y z qx qy qz qw``);
    one frame with no poses is taken as already in world coordinates;
-2. keep road points (per-point labels in ``road_labels``; no labels = every point is road) and
-   fuse the frames into world coordinates;
+2. keep road points -- per-point labels in ``road_labels``, and/or per-frame semantic masks
+   (:func:`mask_road_points`: the points are projected into a camera with intrinsics K and a
+   camera-from-LiDAR extrinsic, and kept where they land on a non-zero mask pixel; the masks
+   stand in for Grounded-SAM's road/pavement output); no labels and no masks = every point is
+   road -- and fuse the frames into world coordinates;
 3. fit the ground plane with RANSAC (open3d ``segment_plane``, seeded), refine it by least squares
    on the inliers and rotate it to Z-up with the plane at z = 0 (the 4x4 ``alignment`` is kept, so
    the result can be mapped back to the input world frame);
@@ -19,8 +22,10 @@ Steps (the paper's hierarchical road model creator, coarse stream):
    beyond ``3 x 1.4826 x MAD``; the plane's value at the vertex is its height. Vertices with too
    few neighbours are removed with their triangles.
 
-Semantic-mask projection (points projected into per-frame camera masks) is not implemented:
-use per-point labels.
+Mask projection: points behind the camera (depth <= 0) and points that land outside the image
+are dropped (they cannot be shown to be road). A frame left with no road point is an error naming
+the frame and its mask (as with labels), not skipped: a mask that misses the road is almost always
+a mismatched mask, calibration or frame order.
 """
 from __future__ import annotations
 
@@ -139,6 +144,90 @@ def fuse_frames(frames: list[tuple[np.ndarray, np.ndarray | None]], poses: np.nd
                 raise RoadtwinError(f"{name}: no road points (labels {sorted(road_labels)})")
         out.append(pts @ T[:3, :3].T + T[:3, 3])
     return np.concatenate(out)
+
+
+# ---------------------------------------------------------------------------- semantic masks
+def intrinsics(k, what: str = "K") -> np.ndarray:
+    """3x3 camera matrix from fx, fy, cx, cy or 9 entries."""
+    try:
+        a = np.asarray(k, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise RoadtwinError(f"{what}: expected fx, fy, cx, cy or a 3x3 matrix, got {k!r}") from None
+    if a.size == 4:
+        fx, fy, cx, cy = a
+        a = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0])
+    if a.size != 9 or not np.isfinite(a).all() or a[0] <= 0 or a[4] <= 0:
+        raise RoadtwinError(f"{what}: expected fx, fy, cx, cy (or 3x3) with positive focal lengths, got {k!r}")
+    return a.reshape(3, 3)
+
+
+def load_extrinsic(src, what: str = "cam_from_lidar") -> np.ndarray:
+    """4x4 camera-from-LiDAR transform from an array or a text file (16 numbers, or 12 = 3x4)."""
+    name = what
+    if isinstance(src, (str, Path)):
+        p = Path(src)
+        name = str(p)
+        if not p.exists():
+            raise RoadtwinError(f"{p}: no such extrinsic file")
+        try:
+            vals = [float(x) for line in p.read_text().splitlines()
+                    for x in line.split("#", 1)[0].replace(",", " ").split()]
+        except ValueError:
+            raise RoadtwinError(f"{p}: extrinsic: not a number") from None
+        a = np.asarray(vals)
+    else:
+        a = np.asarray(src, dtype=np.float64).ravel()
+    if a.size == 12:
+        a = np.r_[a, 0.0, 0.0, 0.0, 1.0]
+    if a.size != 16 or not np.isfinite(a).all():
+        raise RoadtwinError(f"{name}: the camera-from-LiDAR extrinsic must be a 4x4 (or 3x4) matrix, got {a.size} numbers")
+    T = a.reshape(4, 4)
+    R = T[:3, :3]
+    if not np.allclose(T[3], [0, 0, 0, 1]) or not np.allclose(R @ R.T, np.eye(3), atol=1e-4):
+        raise RoadtwinError(f"{name}: the camera-from-LiDAR extrinsic must be a rigid transform "
+                            "(orthonormal rotation, last row 0 0 0 1)")
+    return T
+
+
+def load_mask(src, what: str = "mask") -> tuple[np.ndarray, str]:
+    """(H, W) boolean road mask (non-zero in any channel = road) from a path or an array."""
+    if isinstance(src, np.ndarray):
+        m, name = src, what
+    else:
+        import cv2
+
+        p = Path(src)
+        name = str(p)
+        if not p.exists():
+            raise RoadtwinError(f"{p}: no such mask image")
+        m = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+        if m is None:
+            raise RoadtwinError(f"{p}: cannot read mask image")
+    m = np.asarray(m)
+    if m.ndim == 3:
+        m = (m != 0).any(axis=2)
+    if m.ndim != 2 or m.size == 0:
+        raise RoadtwinError(f"{name}: expected a 2D mask image, got shape {m.shape}")
+    return m != 0, name
+
+
+def mask_road_points(points: np.ndarray, mask: np.ndarray, K: np.ndarray, cam_from_lidar: np.ndarray) -> np.ndarray:
+    """(N,) bool: sensor-frame ``points`` that project in front of the camera onto a road pixel
+    of ``mask`` (pixel centres at integer coordinates; behind the camera or outside: False)."""
+    pc = points @ cam_from_lidar[:3, :3].T + cam_from_lidar[:3, 3]
+    keep = np.zeros(len(points), dtype=bool)
+    front = pc[:, 2] > 1e-6
+    if not front.any():
+        return keep
+    uvw = pc[front] @ K.T
+    u = np.floor(uvw[:, 0] / uvw[:, 2] + 0.5)
+    v = np.floor(uvw[:, 1] / uvw[:, 2] + 0.5)
+    h, w = mask.shape
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    hit = np.zeros(len(u), dtype=bool)
+    hit[inside] = mask[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+    keep[np.flatnonzero(front)] = hit
+    return keep
 
 
 # ---------------------------------------------------------------------------- ground plane

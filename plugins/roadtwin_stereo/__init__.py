@@ -99,11 +99,13 @@ class StereoDefects:
         baseline = inputs.get("baseline")
         if baseline is not None and not (np.isfinite(baseline) and baseline > 0):
             raise RoadtwinError(f"{self.name}: baseline must be a positive number of meters, got {baseline!r}")
-        if not transformed_in and (K is None or baseline is None):
-            raise RoadtwinError(f"{self.name}: 3D defect models need the calibration K and baseline "
-                                "(or transformed=True for defect pixels only)")
+        missing = " and ".join(n for n, v in (("K", K), ("baseline", baseline)) if v is None)
         if inputs.get("disparity") is not None:
             src = inputs["disparity"]
+            src_name = "disparity array" if isinstance(src, np.ndarray) else str(src)
+            if not transformed_in and missing:
+                raise RoadtwinError(f"{src_name}: 3D defect models need the calibration ({missing} missing; "
+                                    "or transformed=True for defect pixels only)")
             if isinstance(src, np.ndarray):
                 disp = np.asarray(src, np.float64).copy()
                 disp[~np.isfinite(disp) | (disp <= 0)] = np.nan
@@ -112,20 +114,22 @@ class StereoDefects:
                 disp = load_disparity(src, p.disparity_scale)
                 source = str(src)
         elif inputs.get("left") is not None and inputs.get("right") is not None:
-            if K is None or baseline is None:
-                raise RoadtwinError(f"{self.name}: a stereo pair needs the calibration K and baseline")
+            lname = "left image (array)" if isinstance(inputs["left"], np.ndarray) else str(inputs["left"])
+            rname = "right image (array)" if isinstance(inputs["right"], np.ndarray) else str(inputs["right"])
+            if missing:
+                raise RoadtwinError(f"{lname}: a stereo pair needs the calibration K and baseline ({missing} missing)")
             left, source = _image(inputs["left"], "left")
             right, _ = _image(inputs["right"], "right")
             if left.shape[:2] != right.shape[:2]:
-                raise RoadtwinError(f"{self.name}: left and right images differ in size: "
-                                    f"{left.shape[:2]} vs {right.shape[:2]}")
+                raise RoadtwinError(f"{rname}: left and right images differ in size: right {right.shape[1]}x"
+                                    f"{right.shape[0]} px, left {lname} {left.shape[1]}x{left.shape[0]} px")
             disp = sgbm_disparity(left, right, p.max_disparity)
         else:
             raise RoadtwinError(f"{self.name}: give a disparity map or a rectified left + right pair")
         source = str(inputs.get("source") or source)
         valid = np.isfinite(disp)
         if valid.mean() < 0.05:
-            raise RoadtwinError(f"{self.name}: {source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")
+            raise RoadtwinError(f"{source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")
         seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, min_area_frac=p.min_area_frac)
         road = None
         if transformed_in:
@@ -134,7 +138,7 @@ class StereoDefects:
             try:
                 dt, road = transform_disparity(disp)
             except ValueError as exc:
-                raise RoadtwinError(f"{self.name}: {source}: {exc}") from None
+                raise RoadtwinError(f"{source}: {exc}") from None
         labels = segment_defects(dt, seg)
         models: list[DefectModel] = []
         instances: list[DefectInstance] = []

@@ -83,7 +83,7 @@ def load_disparity(path: str | Path, scale: float = 1.0) -> np.ndarray:
         raise RoadtwinError(f"{path}: disparity must be 2-D, got shape {d.shape}")
     d[~np.isfinite(d)] = np.nan
     if not np.isfinite(d).any():
-        raise RoadtwinError(f"{path}: no valid disparity")
+        raise RoadtwinError(f"{path}: no valid disparity (every pixel invalid): no road to model")
     return d
 
 
