@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
+from ._console import console, err_console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
@@ -15,8 +15,6 @@ from .errors import RoadtwinError
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="roadtwin: simulation-ready digital twins of roads with their defects, as OpenUSD.")
-console = Console(soft_wrap=True)  # paths in messages must not be broken across lines
-err_console = Console(stderr=True)
 
 
 def _fail(message: str, code: int = 2) -> None:

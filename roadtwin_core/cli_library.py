@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
+from ._console import console, err_console
 from rich.markup import escape
 from rich.table import Table
 
@@ -35,8 +35,7 @@ from .errors import RoadtwinError
 
 library_app = typer.Typer(add_completion=False, no_args_is_help=True,
                           help="A folder of road model library assets (defect models): list, show, add.")
-_console = Console()
-_err = Console(stderr=True)
+_console, _err = console, err_console
 GEOM_SUFFIX = ".geom.usda"
 
 

@@ -9,13 +9,11 @@ from pathlib import Path
 from typing import Iterable, Optional
 
 import typer
-from rich.console import Console
+from ._console import console, err_console
 from rich.table import Table
 
 from .errors import RoadtwinError
 
-console = Console()
-err_console = Console(stderr=True)
 
 
 def comparison_table(results: Iterable, title: str = "path planning") -> Table:

@@ -13,11 +13,10 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
+from ._console import console
 
 from .errors import RoadtwinError
 
-console = Console()
 
 reconstruct_app = typer.Typer(help="Real sensor data -> road surface and defect models.", no_args_is_help=True)
 

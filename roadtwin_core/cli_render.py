@@ -21,7 +21,7 @@ from typing import Callable, Optional
 
 import numpy as np
 import typer
-from rich.console import Console
+from ._console import console
 from rich.table import Table
 
 from .atomic import atomic_output_dir
@@ -191,7 +191,6 @@ def render(
     event_threshold: float = typer.Option(0.2, "--event-threshold", help="mean log-intensity contrast threshold"),
 ) -> None:
     """Render RGB, labels, depth, normals, stereo and events from a composed town."""
-    console = Console()
     summary = run_render(stage, out, frames=frames, size=size, stereo=stereo, baseline=baseline, events=events,
                          formats=formats, seed=seed, hfov=hfov, height=height, poses=poses, weather=weather,
                          material=material, renderer=renderer, device=device, backend=backend, speed=speed,

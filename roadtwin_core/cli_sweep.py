@@ -12,13 +12,12 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from rich.console import Console
+from ._console import console, err_console
 from rich.table import Table
 
 from .errors import RoadtwinError
 
-_console = Console()
-_err = Console(stderr=True)
+_console, _err = console, err_console
 
 
 def parse_tire(spec: str) -> tuple[int, int, int]:

@@ -64,17 +64,14 @@ class CDTMerger:
               rules: ComposeRules) -> MergedSegment:
         h = rules.road_edge_m
         v2, faces, border = even_segment_mesh(segment, h)
-        if not placements:
-            z = surface.height(v2)
-            return MergedSegment(segment.id, np.column_stack([v2, z]), faces,
-                                 np.full(len(faces), -1, dtype=np.int64))
         poly = segment.polygon()
         clipped = [clip_defect(p, poly, v2, border, f"defect {p.instance_id!r} on segment {segment.id!r}")
                    for p in placements]
         owners = [i for i, pc in enumerate(clipped) if pc is not None]
         pieces = [clipped[i] for i in owners]
-        if not pieces:
-            return self.merge(segment, [], surface, rules)
+        if not pieces:  # no defect (or one that only touches the border): the road as re-meshed
+            return MergedSegment(segment.id, np.column_stack([v2, surface.height(v2)]), faces,
+                                 np.full(len(faces), -1, dtype=np.int64))
         margin = self.params.ring_margin_m or 1.2 * h
         removed = covered_triangles(v2, faces, [pc.region for pc in pieces], margin, h)
         strict = True

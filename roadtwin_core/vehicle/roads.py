@@ -337,6 +337,7 @@ def fill_defects(vertices: np.ndarray, defects) -> np.ndarray:
     its interior vertices get the height of the rim surface interpolated over the footprint
     (linear on the rim's Delaunay triangulation, a least-squares plane outside it)."""
     from scipy.interpolate import LinearNDInterpolator
+    from scipy.spatial import QhullError
     from scipy.spatial import cKDTree
 
     v = np.array(vertices, dtype=np.float64, copy=True)
@@ -359,7 +360,7 @@ def fill_defects(vertices: np.ndarray, defects) -> np.ndarray:
             try:
                 lin = LinearNDInterpolator(rxy, rz)(pv[inner, :2])
                 z = np.where(np.isfinite(lin), lin, z)
-            except Exception:  # degenerate rim (collinear): keep the plane
+            except QhullError:  # degenerate rim (collinear): keep the plane
                 pass
             dist, idx = tree.query(pv[inner], distance_upper_bound=1e-6)
             ok = np.isfinite(dist)
