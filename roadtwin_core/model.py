@@ -260,12 +260,76 @@ class FixedDefect:
     seed: int = 0
 
 
+# OpenDRIVE roadMark types (spaces become underscores); "curb" is a kerb, not paint, and is
+# kept as data but draws no paint.
+MARKING_TYPES = ("solid", "broken", "solid_solid", "solid_broken", "broken_solid", "broken_broken",
+                 "botts_dots", "curb")
+PAINTED_MARKING_TYPES = MARKING_TYPES[:-1]
+
+
+@dataclass
+class LaneMarking:
+    """A painted line (or pair of lines) along a lane boundary, as data in the layout.
+
+    ``points`` is the boundary polyline in XY (travel order of the lane section it came from).
+    A broken line paints ``dash_m`` then leaves ``gap_m`` bare, starting ``phase_m`` along the
+    polyline; ``dash_m == 0`` means continuous. Double types (``solid_broken`` ...) are two lines
+    ``spacing_m`` apart centre to centre, the first word on the left of travel. Botts dots are
+    round dots ``width_m`` across every ``dash_m + gap_m``. Widths in metres.
+    """
+
+    id: str
+    marking_type: str
+    color: str
+    width_m: float
+    points: np.ndarray
+    dash_m: float = 0.0
+    gap_m: float = 0.0
+    phase_m: float = 0.0
+    spacing_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        what = f"lane marking {self.id!r}"
+        if self.marking_type not in MARKING_TYPES:
+            raise RoadtwinError(f"{what}: unknown type {self.marking_type!r} (known: {', '.join(MARKING_TYPES)})")
+        self.points = _as_vertices(self.points, what)[:, :2].copy()
+        if len(self.points) < 2:
+            raise RoadtwinError(f"{what}: needs at least 2 points")
+        for name in ("width_m", "dash_m", "gap_m", "phase_m", "spacing_m"):
+            v = float(getattr(self, name))
+            if not np.isfinite(v) or v < 0:
+                raise RoadtwinError(f"{what}: {name} must be a finite number >= 0, got {v}")
+            setattr(self, name, v)
+        if self.width_m <= 0:
+            raise RoadtwinError(f"{what}: width_m must be > 0")
+        if self.dash_m > 0 and self.gap_m <= 0:
+            raise RoadtwinError(f"{what}: a broken line needs gap_m > 0")
+
+    @property
+    def length_m(self) -> float:
+        return float(np.linalg.norm(np.diff(self.points, axis=0), axis=1).sum())
+
+    def lines(self) -> list[tuple[float, float, float]]:
+        """(lateral offset to the left of travel, dash, gap) of each painted line; dash 0 = solid."""
+        parts = self.marking_type.split("_")
+        if self.marking_type == "curb":
+            return []
+        if self.marking_type == "botts_dots":
+            return [(0.0, self.dash_m, self.gap_m)]
+        pattern = {"solid": (0.0, 0.0), "broken": (self.dash_m, self.gap_m)}
+        if len(parts) == 1:
+            return [(0.0, *pattern[parts[0]])]
+        half = self.spacing_m / 2
+        return [(half, *pattern[parts[0]]), (-half, *pattern[parts[1]])]
+
+
 @dataclass
 class TownLayout:
     """Road segments plus the composition rules and where they came from.
 
     ``terrain`` holds optional (N,3) world elevation samples (the k-d tree elevation source),
-    ``fixed`` the defects the layout pins in place, ``metadata`` free-form strings carried to the
+    ``fixed`` the defects the layout pins in place, ``markings`` the painted lane markings,
+    ``metadata`` free-form strings carried to the
     town stage (geo-reference, attribution, default route ...).
     """
 
@@ -276,6 +340,7 @@ class TownLayout:
     terrain: np.ndarray | None = None
     fixed: list[FixedDefect] = field(default_factory=list)
     metadata: dict[str, str] = field(default_factory=dict)
+    markings: list[LaneMarking] = field(default_factory=list)
 
     def segment(self, segment_id: str) -> RoadSegment:
         for s in self.segments:

@@ -1,0 +1,17 @@
+"""Looks: appearance as data. Seeded procedural textures written as PNG next to a stage, and the
+catalog of ``UsdPreviewSurface`` materials that bind them to roads, defects and markings.
+
+Texture coordinates: every rendered mesh carries ``primvars:st`` (texCoord2f, vertex
+interpolation). One st unit covers ``ST_TILE_M`` metres of road, for every material, so a
+texture's content is drawn at its real scale inside a ``ST_TILE_M`` square tile that repeats
+(no ``UsdTransform2d`` needed, which not every importer honours). Driving-lane segments with a
+centreline get lane-aligned st (u along travel, v across, v = 0.5 on the centreline) so the
+tire-polished wheel paths of the asphalt textures lie under the wheels; everything else is
+world-planar (st = xy / ST_TILE_M).
+"""
+from .catalog import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, ROAD_MATERIAL_VARIANTS, ST_TILE_M,
+                      MaterialSpec, defect_material, kind_material, marking_material)
+from .textures import write_textures
+
+__all__ = ["DEFECT_MATERIAL", "KIND_MATERIAL", "MARKING_MATERIAL", "ROAD_MATERIAL_VARIANTS", "ST_TILE_M",
+           "MaterialSpec", "defect_material", "kind_material", "marking_material", "write_textures"]

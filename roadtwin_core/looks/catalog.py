@@ -1,0 +1,47 @@
+"""Which material each road kind, defect type and marking colour gets, and what a material is."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+ST_TILE_M = 4.0  # metres of road per st unit (one texture repeat), for every material
+
+
+@dataclass(frozen=True)
+class MaterialSpec:
+    """One ``UsdPreviewSurface`` material: texture files are names under ``textures/``.
+
+    ``diffuse``: sRGB PNG; ``roughness``: linear 8-bit PNG (or a constant when ``None``,
+    ``roughness_value``); ``normal``: tangent-space normal map PNG (linear, +z out of the surface;
+    ``None`` for flat). ``opacity`` < 1 is unused by the built-ins.
+    """
+
+    name: str
+    diffuse: str
+    roughness: str | None = None
+    roughness_value: float = 0.8
+    normal: str | None = None
+    metallic: float = 0.0
+    doc: str = ""
+
+
+# Road kinds -> material; unknown kinds use "asphalt".
+KIND_MATERIAL = {"driving": "asphalt_worn", "junction": "asphalt", "shoulder": "asphalt", "sidewalk": "pavers",
+                 "parking": "asphalt", "median": "cement"}
+# The root's ``roadMaterial`` variant set switches the material of driving and junction surfaces.
+ROAD_MATERIAL_VARIANTS = {"asphalt": "asphalt_worn", "cobblestone": "cobblestone", "cement": "cement"}
+# Defect types -> material; unknown types use the worn asphalt of the road around them.
+DEFECT_MATERIAL = {"pothole": "pothole", "crack": "crack", "rut": "worn", "depression": "worn",
+                   "bump": "asphalt", "manhole": "cast_iron", "patch": "patch"}
+MARKING_MATERIAL = {"white": "paint_white", "yellow": "paint_yellow"}
+
+
+def kind_material(kind: str) -> str:
+    return KIND_MATERIAL.get(kind, "asphalt")
+
+
+def defect_material(defect_type: str) -> str:
+    return DEFECT_MATERIAL.get(defect_type, "worn")
+
+
+def marking_material(color: str) -> str:
+    return MARKING_MATERIAL.get(color, "paint_white")
