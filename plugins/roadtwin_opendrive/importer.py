@@ -127,6 +127,7 @@ class _MarkPiece:
     """A stretch of one road mark, points along +s (reversed for left lanes at the end)."""
 
     id: str
+    road: str
     lane: int
     style: MarkStyle
     points: np.ndarray
@@ -419,7 +420,7 @@ class _Builder:
                     last.points = np.concatenate([last.points, pts[1:]])
                     last.s_length += b - a
                     continue
-                piece = _MarkPiece(f"r{tag}_ls{sec.k}_{_lane_tag(lid)}_{j}", lid, style, pts, b - a)
+                piece = _MarkPiece(f"r{tag}_ls{sec.k}_{_lane_tag(lid)}_{j}", road.id, lid, style, pts, b - a)
                 self.marks.append(piece)
                 open_marks[lid] = piece
             if not marks:
@@ -532,7 +533,8 @@ class _Builder:
             try:
                 markings.append(piece.marking())
             except RoadtwinError as exc:
-                raise RoadtwinError(f"{self.name}: road mark {piece.id}: {str(exc).split(': ', 1)[-1]}") from None
+                raise RoadtwinError(f"{self.name}: road {piece.road}: lane {piece.lane} road mark {piece.id}: "
+                                   f"{str(exc).split(': ', 1)[-1]}") from None
         layout = TownLayout(name, self.segments, rules, str(odr.path), terrain, [], meta, markings)
         return OpenDriveNetwork(layout, len(odr.roads), len(odr.junctions), self.centerlines, self.n_sections)
 

@@ -71,7 +71,10 @@ def read_layout(path: str | Path) -> TownLayout:
     markings: list[LaneMarking] = []
     for prim in Usd.PrimRange(root):
         if prim.HasAttribute(MARKING + "type"):
-            markings.append(_read_marking(prim, path))
+            # Only the curves are layout data; a composed stage's draped marking meshes may carry
+            # the same attributes and are not read back as markings.
+            if prim.IsA(UsdGeom.BasisCurves):
+                markings.append(_read_marking(prim, path))
             continue
         if prim.HasAttribute(PLACEMENT + "type"):
             fixed.append(_read_fixed(prim, path))
@@ -114,9 +117,6 @@ def read_layout(path: str | Path) -> TownLayout:
 
 def _read_marking(prim: Usd.Prim, path: Path) -> LaneMarking:
     what = f"{path}: lane marking {prim.GetPath()}"
-    if not prim.IsA(UsdGeom.BasisCurves):
-        raise RoadtwinError(f"{what}: has {MARKING}type but is a {prim.GetTypeName() or 'typeless prim'}, "
-                            "expected BasisCurves")
     curves = UsdGeom.BasisCurves(prim)
     pts = np.asarray(curves.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
     counts = list(curves.GetCurveVertexCountsAttr().Get() or [len(pts)])
