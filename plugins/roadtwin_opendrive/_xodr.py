@@ -2,8 +2,9 @@
 
 Only what the importer needs is read: header, roads (planView, elevationProfile,
 lateralProfile/superelevation, lanes/laneOffset, laneSection left/center/right lanes with their
-width and roadMark records, a roadMark's optional ``<type>`` line definitions) and junction ids. Every problem becomes one :class:`RoadtwinError` line naming the
-file and, where there is one, the road id; nothing is skipped silently.
+width and roadMark records, a roadMark's optional ``<type>`` line definitions) and junction ids.
+Every problem becomes one :class:`RoadtwinError` line naming the file and, where there is one,
+the road id; nothing is skipped silently.
 """
 from __future__ import annotations
 

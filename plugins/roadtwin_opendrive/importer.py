@@ -268,7 +268,7 @@ class _Section:
 
 class OpenDriveImporter:
     name = "opendrive"
-    description = "OpenDRIVE 1.4-1.8 road networks (.xodr): lanes as segments, junctions merged"
+    description = "OpenDRIVE 1.4-1.8 road networks (.xodr): lanes as segments, junctions merged, road marks kept"
     suffixes = (".xodr",)
     Params = OpenDriveParams
 
