@@ -58,7 +58,7 @@ def _body(rng: np.random.Generator, n: int, p: _Body):
     if p.pits_per_m2 > 0:
         k = int(p.pits_per_m2 * area)
         pit, pdome, _ = stamp_stones(rng, n, k, *p.pit_r, aspect=1.4)
-        albedo *= (1.0 - 0.65 * pit)[..., None]
+        albedo *= (1.0 - 0.5 * pit)[..., None]
         height -= 0.004 * pit * (0.3 + pdome)
     return albedo.astype(np.float32), height.astype(np.float32), cover
 
@@ -73,8 +73,9 @@ def wheel_paths(v_m: np.ndarray) -> np.ndarray:
 
 def asphalt(rng: np.random.Generator, n: int) -> Surface:
     """New dense asphalt: near-black binder, fine coated aggregate, a few light stones."""
-    albedo, height, cover = _body(rng, n, _Body(binder=srgb(54, 54, 56), mottle=0.06, fine=0.14,
-                                                  stone_tone=(0.8, 1.9), light_frac=0.05))
+    albedo, height, cover = _body(rng, n, _Body(binder=srgb(52, 52, 54), mottle=0.06, fine=0.20,
+                                                  stones_per_m2=4000, stone_tone=(0.7, 2.0), light_frac=0.04,
+                                                  light_albedo=(0.07, 0.15)))
     rough = 0.86 + 0.06 * spectral_noise(rng, n, 0.05, 1.0) - 0.05 * cover
     return Surface(albedo, np.clip(rough, 0, 1), height, normal_strength=2.0)
 
@@ -85,7 +86,7 @@ def asphalt_worn(rng: np.random.Generator, n: int) -> Surface:
     strip between them."""
     albedo, height, cover = _body(rng, n, _Body(binder=srgb(96, 95, 93), mottle=0.10, fine=0.11,
                                                   stones_per_m2=3000, stone_tone=(1.1, 1.9), light_frac=0.12,
-                                                  light_albedo=(0.16, 0.32), pits_per_m2=250))
+                                                  light_albedo=(0.16, 0.30), pits_per_m2=150))
     _, v = grid_m(n)
     band = wheel_paths(v)
     albedo *= (1.0 + 0.10 * band)[..., None]
@@ -100,8 +101,9 @@ def asphalt_worn(rng: np.random.Generator, n: int) -> Surface:
 
 def patch(rng: np.random.Generator, n: int) -> Surface:
     """A recent repair: darker, binder-rich and more uniform than the road around it."""
-    albedo, height, cover = _body(rng, n, _Body(binder=srgb(46, 46, 48), mottle=0.025, fine=0.07,
-                                                  stone_tone=(1.0, 1.3), light_frac=0.015))
+    albedo, height, cover = _body(rng, n, _Body(binder=srgb(46, 46, 48), mottle=0.025, fine=0.10,
+                                                  stone_tone=(0.9, 1.4), light_frac=0.01,
+                                                  light_albedo=(0.05, 0.09)))
     rough = 0.72 + 0.03 * spectral_noise(rng, n, 0.05, 1.0)
     return Surface(albedo, np.clip(rough, 0, 1), height, normal_strength=1.6)
 
@@ -118,9 +120,9 @@ def worn(rng: np.random.Generator, n: int) -> Surface:
 def pothole_pair(rng: np.random.Generator, n: int) -> tuple[Surface, Surface]:
     """Pothole interior, dry and wet (same geometry): base course of coarse 1-3 cm aggregate in
     dust. Wet: darker (water fills the pores) and glossy, with puddles in the low spots."""
-    albedo, height, cover = _body(rng, n, _Body(binder=srgb(52, 49, 45), mottle=0.15, fine=0.18,
-                                                  stones_per_m2=1600, stone_r=(0.004, 0.016), stone_tone=(1.0, 2.4),
-                                                  light_frac=0.08, light_albedo=(0.10, 0.18), stone_height_m=0.008,
+    albedo, height, cover = _body(rng, n, _Body(binder=srgb(62, 58, 52), mottle=0.15, fine=0.18,
+                                                  stones_per_m2=3000, stone_r=(0.004, 0.016), stone_tone=(0.6, 2.2),
+                                                  light_frac=0.06, light_albedo=(0.10, 0.18), stone_height_m=0.008,
                                                   rim_shade=0.55))
     dust = np.clip(spectral_noise(rng, n, 0.05, 1.0, slope=1.0), -2, 2)
     albedo *= (1.0 + 0.10 * dust)[..., None]

@@ -50,7 +50,7 @@ def cast_iron(rng: np.random.Generator, n: int) -> Surface:
     top = smoothstep(0.0, 0.004, edge)
     rust = smoothstep(0.2, 1.4, spectral_noise(rng, n, 0.01, 0.5, slope=1.0)) * (1.0 - 0.8 * top)
     grain = spectral_noise(rng, n, 1.8 * px, 0.02, slope=0.2)
-    metal = srgb(58, 58, 60)[None, None, :] * (1.0 + 0.12 * grain)[..., None]
+    metal = srgb(58, 58, 60)[None, None, :] * (1.0 + 0.06 * grain)[..., None]
     polished = srgb(112, 112, 116)[None, None, :]
     rusty = srgb(96, 52, 28)[None, None, :] * (1.0 + 0.2 * grain)[..., None]
     albedo = metal * (1 - top[..., None]) + polished * top[..., None]

@@ -15,7 +15,7 @@ from .catalog import ST_TILE_M
 
 
 def bond_layout(rng: np.random.Generator, n: int, rows: int, per_row: int, *, width_jitter: float = 0.0,
-                shift: str = "half", warp_m: float = 0.0, corner_m: float = 0.0):
+                shift: str = "half", warp_m: float = 0.0, corner_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Per texel: unit id ``(n, n)`` and inner distance to the unit's edge in metres.
 
     ``shift``: "half" (classic running bond), "random" (each row offset at random) or "none"
@@ -99,14 +99,25 @@ def pavers(rng: np.random.Generator, n: int) -> Surface:
     return Surface(albedo.astype(np.float32), np.clip(rough, 0, 1), height.astype(np.float32), normal_strength=1.5)
 
 
+def _ring_distance(x: np.ndarray, at: float) -> np.ndarray:
+    """Distance from x to the nearest ``at + k * ST_TILE_M`` (periodic)."""
+    return np.abs(np.mod(x - at + ST_TILE_M / 2, ST_TILE_M) - ST_TILE_M / 2)
+
+
 def cement(rng: np.random.Generator, n: int) -> Surface:
-    """Concrete pavement: 2 m x 4 m slabs (joints at u = 0, 0.5 and v = 0), sawn and sealed
+    """Concrete pavement: lane-wide slabs (longitudinal joints at the lane edges of a 3.5 m
+    lane, v = 0.5 +- 0.4375; transverse joints every 2 m at u = 0.25, 0.75), sawn and sealed
     joints, transverse broom texture, per-slab tone, faint oil stains."""
     px = ST_TILE_M / n
-    sid, d = bond_layout(rng, n, 1, 2, shift="none")
-    inner = d - 0.004
+    u, v = grid_m(n)
+    du = np.minimum(_ring_distance(u, 1.0), _ring_distance(u, 3.0))
+    edge = ST_TILE_M / 2 - 1.75
+    dv = np.minimum(_ring_distance(v, edge), _ring_distance(v, ST_TILE_M - edge))
+    inner = np.minimum(du, dv) - 0.004
     slab = smoothstep(-0.5 * px, 0.5 * px, inner)
-    tone = rng.normal(1.0, 0.04, 2)[sid]
+    strip = (v < edge) | (v > ST_TILE_M - edge)  # the neighbouring lane's slab
+    sid = (np.mod(u - 1.0, ST_TILE_M) >= 2.0).astype(np.int64) + 2 * strip
+    tone = rng.normal(1.0, 0.04, 4)[sid]
     broom = spectral_noise(rng, n, 2.5 * px, 0.2, slope=0.3, stretch_u=0.08)  # lines across the road
     sandy = spectral_noise(rng, n, 1.8 * px, 0.02, slope=0.0)
     mottle = spectral_noise(rng, n, 0.2, ST_TILE_M, slope=1.3)

@@ -8,6 +8,7 @@ and columns along u (row 0 at v = 0; the writer flips rows into image order).
 from __future__ import annotations
 
 import numpy as np
+import scipy.fft
 
 from .catalog import ST_TILE_M
 
@@ -20,16 +21,20 @@ def spectral_noise(rng: np.random.Generator, n: int, lam_min: float, lam_max: fl
     smooth Gaussian roll-offs at both ends (no ringing). ``stretch_u`` > 1 elongates features
     along u by that factor (streaks along travel), < 1 across it.
     """
-    fv = np.fft.fftfreq(n, 1.0 / n)[:, None]  # cycles per tile along v (rows)
-    fu = np.fft.rfftfreq(n, 1.0 / n)[None, :]
-    f = np.hypot(fv, fu * stretch_u)
+    f32 = np.float32
+    fv = np.fft.fftfreq(n, 1.0 / n).astype(f32)[:, None]  # cycles per tile along v (rows)
+    fu = np.fft.rfftfreq(n, 1.0 / n).astype(f32)[None, :]
+    f2 = fv * fv + (fu * f32(stretch_u)) ** 2
+    f2[0, 0] = 1.0
     f_hi, f_lo = ST_TILE_M / lam_min, ST_TILE_M / lam_max
-    with np.errstate(divide="ignore"):
-        amp = np.where(f > 0, f ** -slope, 0.0)
-    amp *= np.exp(-(f / f_hi) ** 2) * (1.0 - np.exp(-(f / f_lo) ** 2))
-    spec = (rng.standard_normal(amp.shape) + 1j * rng.standard_normal(amp.shape)) * amp
-    x = np.fft.irfft2(spec, s=(n, n))
-    return ((x - x.mean()) / max(x.std(), 1e-12)).astype(np.float32)
+    amp = f2 ** f32(-slope / 2) * np.exp(-f2 / f32(f_hi * f_hi)) * -np.expm1(-f2 / f32(f_lo * f_lo))
+    amp[0, 0] = 0.0
+    shape = amp.shape
+    spec = np.empty(shape, np.complex64)
+    spec.real = rng.standard_normal(shape, dtype=f32) * amp
+    spec.imag = rng.standard_normal(shape, dtype=f32) * amp
+    x = scipy.fft.irfft2(spec, s=(n, n), workers=1)
+    return (x * f32(1.0 / max(float(x.std()), 1e-12))).astype(f32)
 
 
 def periodic_blur(field: np.ndarray, sigma_m: float) -> np.ndarray:
@@ -38,8 +43,9 @@ def periodic_blur(field: np.ndarray, sigma_m: float) -> np.ndarray:
     sigma_px = sigma_m * n / ST_TILE_M
     fv = np.fft.fftfreq(n)[:, None]
     fu = np.fft.rfftfreq(n)[None, :]
-    g = np.exp(-2.0 * (np.pi * sigma_px) ** 2 * (fv ** 2 + fu ** 2))
-    return np.fft.irfft2(np.fft.rfft2(field) * g, s=field.shape).astype(np.float32)
+    g = np.exp(-2.0 * (np.pi * sigma_px) ** 2 * (fv ** 2 + fu ** 2)).astype(np.float32)
+    return scipy.fft.irfft2(scipy.fft.rfft2(field.astype(np.float32), workers=1) * g, s=field.shape,
+                            workers=1).astype(np.float32)
 
 
 def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
@@ -64,7 +70,7 @@ def stamp_stones(rng: np.random.Generator, n: int, count: int, r_lo: float, r_hi
     a = rng.uniform(r_lo, r_hi, count) / px  # semi-axes in pixels
     b = a / rng.uniform(1.0, aspect, count)
     ang = rng.uniform(0.0, np.pi, count)
-    r_px = int(np.ceil(a.max())) + 1
+    r_px = int(np.ceil(a.max() + 1.0))  # rim + anti-aliasing + sub-pixel centre
     off = np.arange(-r_px, r_px + 1)
     dy, dx = [o.ravel() for o in np.meshgrid(off, off, indexing="ij")]
     iy, ix = np.floor(cy).astype(np.int64), np.floor(cx).astype(np.int64)
@@ -73,16 +79,17 @@ def stamp_stones(rng: np.random.Generator, n: int, count: int, r_lo: float, r_hi
     pxx = (ix + 0.5 - cx).astype(f32)[:, None] + dx.astype(f32)
     c, s = np.cos(ang).astype(f32)[:, None], np.sin(ang).astype(f32)[:, None]
     lu, lv = (c * pxx + s * py) / a.astype(f32)[:, None], (-s * pxx + c * py) / b.astype(f32)[:, None]
-    rho = np.hypot(lu, lv)  # 1 on the rim
-    alpha = np.clip((1.0 - rho) * b.astype(f32)[:, None] + 0.5, 0.0, 1.0)  # ~1 px anti-aliased edge
+    rho2 = lu * lu + lv * lv  # 1 on the rim
+    b32 = b.astype(f32)[:, None]
+    keep = rho2 < (1.0 + 0.5 / b32) ** 2  # inside the anti-aliased edge
+    rho = np.sqrt(rho2[keep])
+    w = np.clip((1.0 - rho) * np.broadcast_to(b32, keep.shape)[keep] + 0.5, 0.0, 1.0)  # ~1 px AA edge
     dome = np.sqrt(np.clip(1.0 - rho * rho, 0.0, 1.0))
-    keep = alpha > 0
-    idx = (((iy[:, None] + dy) % n) * n + (ix[:, None] + dx) % n)[keep]
-    w = alpha[keep]
+    stone, k = np.nonzero(keep)
+    idx = ((iy[stone] + dy[k]) % n) * n + (ix[stone] + dx[k]) % n
     cov = np.bincount(idx, w, minlength=n * n)
     safe = np.maximum(cov, 1e-9)
-    dome_out = np.bincount(idx, w * dome[keep], minlength=n * n) / safe
-    stone = np.nonzero(keep)[0]
+    dome_out = np.bincount(idx, w * dome, minlength=n * n) / safe
     val = np.stack([np.bincount(idx, w * values[stone, k], minlength=n * n) / safe
                     for k in range(values.shape[1])], axis=-1)
     shape = (n, n)

@@ -41,7 +41,7 @@ def _pothole(rng: np.random.Generator, n: int) -> dict[str, Surface]:
 _GROUPS: dict[str, tuple[Callable, tuple[float, float, float], str]] = {
     "asphalt": (_one(_asphalt.asphalt), (1, 0.5, 0.25), "new dense asphalt"),
     "asphalt_worn": (_one(_asphalt.asphalt_worn), (1, 0.5, 0.25), "aged asphalt, tire-polished wheel paths"),
-    "patch": (_one(_asphalt.patch), (1, 0.5, 0.25), "fresh asphalt repair"),
+    "patch": (_one(_asphalt.patch), (0.5, 0.5, 0.25), "fresh asphalt repair"),
     "worn": (_one(_asphalt.worn), (0.5, 0.5, 0.25), "polished worn asphalt (ruts, depressions)"),
     "pothole": (_pothole, (0.5, 0.5, 0.25), "pothole interior: coarse exposed aggregate (dry / wet)"),
     "crack": (_one(_asphalt.crack), (0.25, 0.25, 0.25), "inside a crack: near-black"),
