@@ -1,7 +1,7 @@
 """Periodic building blocks for the texture generators: everything here tiles by construction.
 
 Why FFT: noise synthesised from a spectrum that holds only whole cycles per tile is exactly
-periodic, so a texture repeats without a seam; blurs, stamps and gradients below likewise wrap
+periodic, so a texture repeats without a seam; stamps and gradients below likewise wrap
 around the tile edges. Fields are ``(n, n)`` arrays over one ``ST_TILE_M`` tile with rows along v
 and columns along u (row 0 at v = 0; the writer flips rows into image order).
 """
@@ -35,17 +35,6 @@ def spectral_noise(rng: np.random.Generator, n: int, lam_min: float, lam_max: fl
     spec.imag = rng.standard_normal(shape, dtype=f32) * amp
     x = scipy.fft.irfft2(spec, s=(n, n), workers=1)
     return (x * f32(1.0 / max(float(x.std()), 1e-12))).astype(f32)
-
-
-def periodic_blur(field: np.ndarray, sigma_m: float) -> np.ndarray:
-    """Gaussian blur with wrap-around (in the frequency domain), ``sigma_m`` in metres."""
-    n = field.shape[0]
-    sigma_px = sigma_m * n / ST_TILE_M
-    fv = np.fft.fftfreq(n)[:, None]
-    fu = np.fft.rfftfreq(n)[None, :]
-    g = np.exp(-2.0 * (np.pi * sigma_px) ** 2 * (fv ** 2 + fu ** 2)).astype(np.float32)
-    return scipy.fft.irfft2(scipy.fft.rfft2(field.astype(np.float32), workers=1) * g, s=field.shape,
-                            workers=1).astype(np.float32)
 
 
 def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
