@@ -2,7 +2,7 @@
 
 Modelled on the Brazilian federal highways of the real survey frames (road_defects_br): one
 3.5 m lane each way (right-hand traffic), paved shoulders of 2.25 m, then a 5 m verge (grass or
-gravel later, kind ``verge``) on each side. About 1.76 km long: straight tangents joined by
+gravel later, kind ``verge``) on each side. About 2.0 km long: straight tangents joined by
 circular curves of 320-1000 m radius through 60 m clothoids (curvature ramps linearly, as road
 design does, so a camera driving the lane never sees a kink); grades of up to 4 % joined by
 parabolic crest and sag curves (grade ramps linearly over 250 m). The cross-section has a 2 %
@@ -14,7 +14,7 @@ curve and the last crest) with a double solid yellow line, and solid white edge 
 lane and shoulder.
 
 Defects are dense so that most views contain some: ``densityPerKm`` counts per km of lane
-centreline (3.5 km here); shoulders take defects too (about 40 % of the allowed area), so a
+centreline (4.0 km here); shoulders take defects too (about 40 % of the allowed area), so a
 density of 560 puts about 340 per km into each lane. Type weights favour potholes and cracks,
 with ``patch`` (repaired asphalt, the commonest false positive) — a type the looks work adds:
 composing this layout needs that plugin.
@@ -170,7 +170,8 @@ def terrain(center: np.ndarray, s: np.ndarray, z: np.ndarray, every: float = 2.5
     across is similar on purpose: the k-d tree surface fits a plane to the 8 nearest samples,
     which must not all lie on one cross line."""
     outer = LANE + SHOULDER + VERGE
-    half_lateral = np.array([0.0, LANE / 2, LANE, LANE + SHOULDER, LANE + SHOULDER + VERGE / 2, outer, outer + 3.0])
+    half_lateral = np.array([0.0, LANE / 4, LANE / 2, 3 * LANE / 4, LANE, LANE + SHOULDER / 2, LANE + SHOULDER,
+                             LANE + SHOULDER + VERGE / 2, outer, outer + 3.0])
     lateral = np.unique(np.concatenate([-half_lateral, half_lateral]))
     si = np.arange(0.0, s[-1] + 1e-9, every)
     c = np.column_stack([np.interp(si, s, center[:, 0]), np.interp(si, s, center[:, 1])])

@@ -186,7 +186,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / max(float(np.linalg.norm(v)), 1e-12)
 
 
-def project_to_lane(lane: Lane, xy: np.ndarray, chunk: int = 4096) -> tuple[np.ndarray, np.ndarray]:
+def project_to_lane(lane: Lane, xy: np.ndarray, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
     """Arc length ``s`` of the closest lane point and signed lateral offset (left of travel
     positive) for plan points (N,2); exact on the polyline."""
     xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
@@ -373,6 +373,18 @@ def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn
         views.append(View(i, Camera(intr, m), lane.id, seg, s, target,
                           tuple(target_ids[k] for k in np.nonzero(seen)[0]), j))
     return views
+
+
+def stage_views(stage_path, town, ground: GroundFn, n: int, **options) -> tuple[list[View], list[ChainedLane]]:
+    """What ``roadtwin render --views defects:SHARE`` does: the stage's driving lanes chained,
+    its defects as targets, then :func:`sample_views` (``options`` are passed on). Returns the
+    views and the chained lanes (the ego-lane labeller takes ``lane_ahead`` of a view's lane)."""
+    from .scene import stage_lanes
+
+    lanes = chain_lanes(stage_lanes(stage_path))
+    if not lanes:
+        raise RoadtwinError(f"{stage_path}: no driving lane centrelines (roadtwin:segment:centerline) to place views on")
+    return sample_views(lanes, defect_targets(town), ground, n, **options), lanes
 
 
 def share_with_targets(views: Sequence[View]) -> float:
