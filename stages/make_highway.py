@@ -30,8 +30,7 @@ from pathlib import Path
 import numpy as np
 import triangle
 
-from roadtwin_core import ComposeRules, RoadSegment, TownLayout
-from roadtwin_core.model import LaneMarking
+from roadtwin_core import ComposeRules, LaneMarking, RoadSegment, TownLayout
 from roadtwin_core.usd import write_layout
 
 LANE, SHOULDER, VERGE, SPLIT = 3.5, 2.25, 5.0, 25.0
