@@ -47,7 +47,7 @@ CENTRE_DASH, CENTRE_GAP = 4.0, 12.0
 # No-passing zones (s ranges) get a double solid centre line: the 400 m curve and the last crest.
 NO_PASSING = [(380.0, 700.0), (1200.0, 1460.0)]
 TYPE_WEIGHTS = {"pothole": 5.0, "crack": 4.0, "patch": 2.0, "depression": 0.5, "rut": 0.5}
-DENSITY_PER_KM = 560.0
+DENSITY_PER_KM = 250.0  # about half of survey views see a pothole or crack 5-25 m ahead, as in the real frames
 
 # Strip layout across the road: lateral offsets (left of the reference line positive) and kinds.
 OFFSETS = [-(LANE + SHOULDER + VERGE), -(LANE + SHOULDER), -LANE, 0.0, LANE, LANE + SHOULDER,
