@@ -247,3 +247,31 @@ def test_bootstrap_interval_known_answers():
     assert res["pothole"]["gain"] == pytest.approx(d.mean())
     assert res["pothole"]["lo"] == pytest.approx(d.mean() - half, abs=0.12 * half)
     assert res["pothole"]["hi"] == pytest.approx(d.mean() + half, abs=0.12 * half)
+
+
+# ------------------------------------------------------------------------------- survey rig
+def test_survey_rig_estimate_recovers_a_known_camera():
+    """Label a 3.5 m lane seen by a known camera (ray-plane intersection through cameras.py),
+    then estimate: the horizon/width-slope geometry must give back height and pitch."""
+    import math
+
+    from roadtwin_core.render.cameras import RIG_PRESETS, Camera, Intrinsics, look_from
+
+    spec = importlib.util.spec_from_file_location("estimate_survey_rig", ROOT / "bench/estimate_survey_rig.py")
+    est = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(est)
+    k = Intrinsics.from_fov(512, 320, 60.0)
+    cam = Camera(k, look_from((0.0, 0.4, 2.3), 0.0, math.radians(-25.0)))
+    d, o = cam.rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[..., 2] < 0, -o[2] / d[..., 2], np.inf)
+    y = o[1] + t * d[..., 1]
+    label = (np.isfinite(t) & (np.abs(y) < 1.75)).astype(np.uint8)
+    e = est.frame_estimate(label)
+    rig = est.rig_from(e["v_h"], e["slope"], e["u_vp"], 512, 320, 60.0, 3.5)
+    assert rig["height_m"] == pytest.approx(2.3, rel=0.02)
+    assert rig["pitch_down_deg"] == pytest.approx(25.0, abs=0.3)
+    assert abs(rig["yaw_deg"]) < 0.3
+    survey = RIG_PRESETS["survey"]
+    assert (survey.width, survey.height) == (512, 320) and survey.intrinsics().fx == pytest.approx(k.fx)
+    assert RIG_PRESETS["stereo"].baseline_m == 0.54
