@@ -24,9 +24,9 @@ gains.png and grid.png (predictions of the seed-0 models on a few evaluation fra
 Subcommands:
   pack SRC DST      any dataset folder (images/+labels/, MMSeg img_dir/+ann_dir/, a roadtwin
                     render output) -> DST/images/*.jpg + DST/labels/*.png at 512x320, labels
-                    checked: a compact copy to carry to the GPU machine (the device tool carries
-                    at most 64 MiB; JPEG q90 is ~35 KB a frame, so ~800 synthetic frames fit
-                    beside the 27 MB of real ones).
+                    checked: a compact copy to carry to the GPU machine. The device tool carries
+                    at most 64 MiB with the repository (~20 MB) and the real frames (27 MB), so
+                    ~17 MB remain: ~500 synthetic frames at --quality 85 (~30 KB each).
   train             trains and evaluates the given seeds; writes OUT/results_seed<k>.json and
                     OUT/preds_seed<k>.npz (one seed is ~5-8 min on an H100: fits one device call).
   report FILES...   merges results_seed*.json (+ preds) -> table, results.json, gains.png, grid.png.
@@ -55,7 +55,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -217,8 +217,6 @@ class Config:
     fractions: tuple = (1.0, 0.1)
     subset_seed: int = 0
     size: tuple | None = (512, 320)
-    compile: bool = False
-    extra: dict = field(default_factory=dict)
 
 
 def _to_device(frames: Frames, device):
@@ -447,7 +445,13 @@ def summarize(results: list[dict], n_boot: int = 2000) -> dict:
             continue
         pooled = {k: sum(np.array(r["runs"][n][m]) for r in both) for k, (n, m) in
                   {"ia": (a, "I"), "ua": (a, "U"), "ib": (b, "I"), "ub": (b, "U")}.items()}
-        summary["gains"][b] = {"over": a, "seeds": len(both), **bootstrap_gain(n_boot=n_boot, **pooled)}
+        gains = bootstrap_gain(n_boot=n_boot, **pooled)
+        for key, g in gains.items():     # the gain seed by seed, beside the pooled interval
+            per = [iou_table(np.array(r["runs"][b]["I"]), np.array(r["runs"][b]["U"]))[key]
+                   - iou_table(np.array(r["runs"][a]["I"]), np.array(r["runs"][a]["U"]))[key] for r in both]
+            g.update(per_seed=per, seed_mean=float(np.mean(per)),
+                     seed_std=float(np.std(per, ddof=1)) if len(per) > 1 else 0.0)
+        summary["gains"][b] = {"over": a, "seeds": len(both), **gains}
     return summary
 
 
