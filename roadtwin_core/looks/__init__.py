@@ -10,9 +10,10 @@ tire-polished wheel paths of the asphalt textures lie under the wheels; everythi
 world-planar (st = xy / ST_TILE_M).
 """
 from .catalog import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL_MATERIALS, ROAD_MATERIAL_VARIANTS,
-                      ST_TILE_M, MaterialSpec, all_materials, defect_material, kind_material, marking_material)
+                      ST_TILE_M, VERGE_MATERIAL_VARIANTS, MaterialSpec, all_materials, defect_material, kind_material,
+                      marking_material)
 from .textures import write_textures
 
 __all__ = ["DEFECT_MATERIAL", "KIND_MATERIAL", "MARKING_MATERIAL", "OPTIONAL_MATERIALS", "ROAD_MATERIAL_VARIANTS",
-           "ST_TILE_M", "MaterialSpec", "all_materials", "defect_material", "kind_material", "marking_material",
-           "write_textures"]
+           "ST_TILE_M", "VERGE_MATERIAL_VARIANTS", "MaterialSpec", "all_materials", "defect_material", "kind_material",
+           "marking_material", "write_textures"]

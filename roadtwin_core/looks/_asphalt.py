@@ -1,5 +1,5 @@
-"""Asphalt family: new, worn (with tire-polished wheel paths), patch, worn defect floor, pothole
-interior (dry and wet) and crack.
+"""Asphalt family: new, worn (with tire-polished wheel paths), paved shoulder, patch, worn defect
+floor, pothole interior (dry and wet) and crack.
 
 Why one body recipe: every asphalt is binder + sand + aggregate; ageing is a change of
 parameters (binder oxidises grey and wears off the stone tops, fines ravel out leaving pits,
@@ -97,6 +97,29 @@ def asphalt_worn(rng: np.random.Generator, n: int) -> Surface:
     height = height * (1.0 - 0.5 * band) - 0.002 * band  # polished flat, slightly rutted
     rough = 0.88 - 0.30 * band + 0.05 * spectral_noise(rng, n, 0.05, 1.0) - 0.05 * cover
     return Surface(albedo, np.clip(rough, 0, 1), height, normal_strength=2.0)
+
+
+def shoulder(rng: np.random.Generator, n: int) -> Surface:
+    """Paved shoulder: an older, coarser surface dressing than the lane (rarely driven on, so
+    never polished), weathered lighter and warmer, red soil dust blown in from the verge, and
+    loose debris: pebbles and straw."""
+    albedo, height, cover = _body(rng, n, _Body(binder=srgb(100, 97, 94), mottle=0.14, fine=0.12,
+                                                  stones_per_m2=1400, stone_r=(0.003, 0.008), stone_tone=(1.0, 1.8),
+                                                  light_frac=0.15, light_albedo=(0.14, 0.28), pits_per_m2=300,
+                                                  pit_r=(0.004, 0.010), rim_shade=0.35, stone_height_m=0.002))
+    dust = 0.1 + 0.25 * smoothstep(-1.5, 2.0, spectral_noise(rng, n, 0.4, ST_TILE_M, slope=1.6))
+    albedo = albedo * (1.0 - dust[..., None]) + dust[..., None] * srgb(136, 108, 90)[None, None, :]
+    k = int(40 * ST_TILE_M ** 2)  # loose pebbles, 1-3 cm
+    pebble_rgb = srgb(140, 124, 104)[None, :] * rng.uniform(0.5, 1.3, k)[:, None]
+    pebbles, p_dome, p_col = stamp_stones(rng, n, k, 0.005, 0.014, aspect=1.6, values=pebble_rgb)
+    albedo = albedo * (1.0 - pebbles[..., None]) + (p_col * (0.55 + 0.45 * p_dome)[..., None]) * pebbles[..., None]
+    k = int(12 * ST_TILE_M ** 2)  # straw and twigs: thin pale strokes
+    straw, _, s_tone = stamp_stones(rng, n, k, 0.015, 0.04, aspect=10.0)
+    albedo = albedo * (1.0 - 0.8 * straw[..., None]) + 0.8 * straw[..., None] * (
+        srgb(170, 150, 100)[None, None, :] * (0.6 + 0.5 * s_tone)[..., None])
+    height = height + 0.008 * pebbles * p_dome
+    rough = 0.9 + 0.04 * spectral_noise(rng, n, 0.05, 1.0) - 0.04 * cover
+    return Surface(albedo.astype(np.float32), np.clip(rough, 0, 1), height.astype(np.float32), normal_strength=1.5)
 
 
 def patch(rng: np.random.Generator, n: int) -> Surface:

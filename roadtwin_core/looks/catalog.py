@@ -25,10 +25,13 @@ class MaterialSpec:
 
 
 # Road kinds -> material; unknown kinds use "asphalt".
-KIND_MATERIAL = {"driving": "asphalt_worn", "junction": "asphalt", "shoulder": "asphalt", "sidewalk": "pavers",
-                 "parking": "asphalt", "median": "cement"}
+KIND_MATERIAL = {"driving": "asphalt_worn", "junction": "asphalt", "shoulder": "shoulder", "sidewalk": "pavers",
+                 "parking": "asphalt", "median": "cement", "verge": "grass"}
 # The root's ``roadMaterial`` variant set switches the material of driving and junction surfaces.
 ROAD_MATERIAL_VARIANTS = {"asphalt": "asphalt_worn", "cobblestone": "cobblestone", "cement": "cement"}
+# The unpaved strip beyond the shoulder: a ``vergeMaterial`` variant set (or a renderer's domain
+# randomisation) may switch the material of verge surfaces among these.
+VERGE_MATERIAL_VARIANTS = {"grass": "grass", "gravel": "gravel", "soil": "soil"}
 # Defect types -> material; unknown types use the worn asphalt of the road around them.
 DEFECT_MATERIAL = {"pothole": "pothole", "crack": "crack", "rut": "worn", "depression": "worn",
                    "bump": "asphalt", "manhole": "cast_iron", "patch": "patch"}
@@ -39,7 +42,8 @@ OPTIONAL_MATERIALS = ("pothole_wet",)
 
 def all_materials() -> list[str]:
     """Every material name the catalog uses (what a looks layer authors)."""
-    return sorted({*KIND_MATERIAL.values(), *ROAD_MATERIAL_VARIANTS.values(), *DEFECT_MATERIAL.values(),
+    return sorted({*KIND_MATERIAL.values(), *ROAD_MATERIAL_VARIANTS.values(),
+                   *VERGE_MATERIAL_VARIANTS.values(), *DEFECT_MATERIAL.values(),
                    *MARKING_MATERIAL.values(), "asphalt", "worn", "paint_white", *OPTIONAL_MATERIALS})
 
 

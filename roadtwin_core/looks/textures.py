@@ -3,7 +3,8 @@
 Why per-map resolutions: a 4 m tile needs ~4 mm texels for asphalt aggregate to read at
 camera distance, but roughness varies slowly and normals carry little above 8 mm, so those are
 stored at 1/2-1/4 of the diffuse size (block means of the same field: still seamless). That
-keeps the default set (``size`` 1024) to ~11.6 MB of PNG and ~2.5 s of CPU. Images are in the usual order
+keeps the default set (``size`` 1024) to ~14.4 MB of PNG and ~3 s of CPU (verge and shoulder
+maps, seen from further away, at 1/2 and 1/4 of it: ~2.8 MB, ~0.6 s). Images are in the usual order
 (row 0 = top = v 1, as UsdUVTexture reads st (0, 0) at the bottom-left); normal maps are
 tangent space (x along u, y along v, z out) encoded as (n + 1) / 2 in 0..255; roughness is
 linear; diffuse is sRGB.
@@ -17,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import RoadtwinError
-from . import _asphalt, _finishes, _masonry
+from . import _asphalt, _finishes, _masonry, _roadside
 from ._noise import block_mean, linear_to_srgb8, normal_map, unit_to_u8
 from ._surface import Surface
 from .catalog import MaterialSpec
@@ -41,6 +42,10 @@ def _pothole(rng: np.random.Generator, n: int) -> dict[str, Surface]:
 _GROUPS: dict[str, tuple[Callable, tuple[float, float, float], str]] = {
     "asphalt": (_one(_asphalt.asphalt), (1, 0.5, 0.25), "new dense asphalt"),
     "asphalt_worn": (_one(_asphalt.asphalt_worn), (1, 0.5, 0.25), "aged asphalt, tire-polished wheel paths"),
+    "shoulder": (_one(_asphalt.shoulder), (0.5, 0.25, 0.25), "paved shoulder: coarse, weathered, dust and debris"),
+    "grass": (_one(_roadside.grass), (0.5, 0.25, 0.25), "roadside grass: green and dry clumps, bare patches"),
+    "gravel": (_one(_roadside.gravel), (0.5, 0.25, 0.25), "loose gravel on a verge"),
+    "soil": (_one(_roadside.soil), (0.5, 0.25, 0.25), "red-brown lateritic soil"),
     "patch": (_one(_asphalt.patch), (0.5, 0.5, 0.25), "fresh asphalt repair"),
     "worn": (_one(_asphalt.worn), (0.5, 0.5, 0.25), "polished worn asphalt (ruts, depressions)"),
     "pothole": (_pothole, (0.5, 0.5, 0.25), "pothole interior: coarse exposed aggregate (dry / wet)"),
