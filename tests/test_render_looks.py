@@ -323,3 +323,32 @@ def test_render_mesh_npz_keeps_looks(renderer, two_quads, tmp_path):
     a, _ = render(renderer, mesh, cam)
     b, _ = render(renderer, back, cam)
     np.testing.assert_allclose(a.rgb, b.rgb, rtol=1e-5, atol=1e-6)
+
+
+def test_road_material_variant_selects_the_binding(renderer, tmp_path):
+    """``--material`` picks a variant of the root's roadMaterial set (in memory, file unchanged)."""
+    png(tmp_path / "red.png", np.full((2, 2, 3), (200, 20, 20)))
+    png(tmp_path / "blue.png", np.full((2, 2, 3), (20, 20, 200)))
+    path = tmp_path / "t.usda"
+    stage = new_stage(path, "Town")
+    root = UsdGeom.Xform.Define(stage, "/Town").GetPrim()
+    red = material(stage, "/Town/Looks/Red", diffuse="./red.png")
+    blue = material(stage, "/Town/Looks/Blue", diffuse="./blue.png")
+    mesh = quad(stage, "/Town/Roads/a", -50.0, 50.0, -50.0, 50.0)
+    vs = root.GetVariantSets().AddVariantSet("roadMaterial")
+    for name, mat in (("red", red), ("blue", blue)):
+        vs.AddVariant(name)
+        vs.SetVariantSelection(name)
+        with vs.GetVariantEditContext():
+            bind(mesh, mat)
+    vs.SetVariantSelection("red")
+    stage.GetRootLayer().Save()
+    cam = down_camera(0.0, 0.0, 2.0, size=4)
+    for choice, rgb in ((None, (200, 20, 20)), ("blue", (20, 20, 200))):
+        town = load_town(path, looks=True, variants={"roadMaterial": choice} if choice else None)
+        fr, _ = render(renderer, build_render_mesh(town), cam)
+        np.testing.assert_allclose(fr.rgb[2, 2], srgb_decode(rgb) * lambert(), rtol=0.01)
+    with pytest.raises(RoadtwinError, match="roadMaterial variant 'marble' is not one of"):
+        load_town(path, looks=True, variants={"roadMaterial": "marble"})
+    saved = Usd.Stage.Open(str(path)).GetPrimAtPath("/Town").GetVariantSets().GetVariantSet("roadMaterial")
+    assert saved.GetVariantSelection() == "red"
