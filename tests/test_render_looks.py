@@ -350,5 +350,5 @@ def test_road_material_variant_selects_the_binding(renderer, tmp_path):
         np.testing.assert_allclose(fr.rgb[2, 2], srgb_decode(rgb) * lambert(), rtol=0.01)
     with pytest.raises(RoadtwinError, match="roadMaterial variant 'marble' is not one of"):
         load_town(path, looks=True, variants={"roadMaterial": "marble"})
-    saved = Usd.Stage.Open(str(path)).GetPrimAtPath("/Town").GetVariantSets().GetVariantSet("roadMaterial")
-    assert saved.GetVariantSelection() == "red"
+    saved = Usd.Stage.Open(str(path))
+    assert saved.GetPrimAtPath("/Town").GetVariantSets().GetVariantSet("roadMaterial").GetVariantSelection() == "red"
