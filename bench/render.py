@@ -13,7 +13,8 @@ Two steps, so the timed part needs only numpy + warp (no USD, no roadtwin) on a 
 
 ``raycast.py`` (the renderer's kernels) and ``events.py`` (the event simulator) are loaded by
 file path. Figures: G-buffer (depth, normal, class, instance, face id per pixel; one ray per
-pixel), RGB (G-buffer + procedural shading + a shadow ray per lit pixel), stereo (both views'
+pixel), RGB (G-buffer + textured shading from the stage's materials: MIP-mapped diffuse,
+roughness and normal lookups + a shadow ray per lit pixel), stereo (both views'
 G-buffer and RGB + the occlusion rays), each over the prepared random lane poses; events: a
 continuous 8 m/s drive rendered at 500 Hz, then the event simulator alone (events/s and frames/s).
 On the CPU the G-buffer is also timed with open3d's Embree ray caster when open3d is importable
@@ -55,7 +56,7 @@ def prepare(out: Path, stage: Path | None, poses: int, seed: int, ev_frames: int
     with tempfile.TemporaryDirectory() as tmp:
         if stage is None:
             stage = compose(REPO / "stages/town.usda", Path(tmp) / "town", preview=False).town
-        town = load_town(stage)
+        town = load_town(stage, looks=True)
         mesh = build_render_mesh(town, get_plugin_manager().registry("defect_types").keys())
         lanes = stage_lanes(stage)
     ground = GroundSampler(mesh)
@@ -65,6 +66,14 @@ def prepare(out: Path, stage: Path | None, poses: int, seed: int, ev_frames: int
     mesh.save_npz(out, cam_to_world=np.array(cams), traj_cam_to_world=np.array(traj), traj_t=times)
     print(f"wrote {out}: {len(mesh.faces)} triangles, {len(mesh.instances)} defects, {len(cams)} poses, "
           f"{len(traj)}-frame trajectory")
+
+
+def npz_materials(z) -> list[dict]:
+    """The material table of a ``RenderMesh.save_npz`` file as the kernels take it (no roadtwin)."""
+    info = json.loads(bytes(z["info"]).decode())
+    return [{"name": m["name"], "diffuse": z[f"mat{k}_diffuse"], "roughness": z[f"mat{k}_roughness"],
+             "normal": z[f"mat{k}_normal"] if m["normal"] else None, "metallic": m["metallic"],
+             "wrap": tuple(m["wrap"])} for k, m in enumerate(info["materials"])]
 
 
 def bench(npz: Path, device: str | None, width: int, height: int, frames: int, ev_size: tuple[int, int],
@@ -79,7 +88,7 @@ def bench(npz: Path, device: str | None, width: int, height: int, frames: int, e
     origin = np.floor((v.min(0) + v.max(0)) / 2)
     t0 = time.perf_counter()
     rs = rc.RaycastScene(v - origin, z["faces"], z["face_class"], z["face_instance"], z["face_material"],
-                         z["face_tint"], device=device)
+                         z["face_uv"], npz_materials(z), device=device)
     rs.synchronize()
     t_build = time.perf_counter() - t0
     light = rc.make_light(rc.light_preset("clear"))
@@ -104,7 +113,7 @@ def bench(npz: Path, device: str | None, width: int, height: int, frames: int, e
     gb = rs.buffer(width, height)
     gbr = rs.buffer(width, height, 1)
     res = {"device": str(rs.device), "triangles": int(len(z["faces"])), "size": f"{width}x{height}",
-           "mesh_build_s": round(t_build, 3)}
+           "materials": len(npz_materials(z)), "texels": int(rs.texels), "mesh_build_s": round(t_build, 3)}
     res["gbuffer_fps"] = timed(lambda c: rs.gbuffer(c, gb), frames)
     res["rgb_fps"] = timed(lambda c: rs.shade(c, light, rs.gbuffer(c, gb)), frames)
 

@@ -3,6 +3,8 @@
     roadtwin render out/town/town.usda --frames 100 --size 640x480 --stereo --events \\
         --formats kitti,mmseg,coco,depth,normal -o out/render
 
+Appearance is the stage's: the UsdPreviewSurface materials and textures bound to its meshes
+(``--material`` only picks a variant of the root's ``roadMaterial`` variant set, in memory).
 Cameras: ``--frames`` random poses on the driving lanes' centerlines (``--height`` m above the
 road, looking down the lane with random yaw / pitch / roll jitter, seeded), or the poses of a
 ``--poses`` JSON file. ``--events`` adds a continuous drive along one lane (``--speed`` m/s,
@@ -46,7 +48,7 @@ def parse_size(text: str, what: str = "--size") -> tuple[int, int]:
 def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str = "640x480", stereo: bool = False,
                baseline: float = 0.54, events: bool = False, formats: str | None = None, seed: int = 0,
                hfov: float = 90.0, height: float = 1.5, poses: str | Path | None = None, weather: str = "clear",
-               material: str = "kind", renderer: str = "warp", device: str | None = None, backend: str = "auto",
+               material: str | None = None, renderer: str = "warp", device: str | None = None, backend: str = "auto",
                speed: float = 8.0, event_rate: float = 500.0, event_frames: int = 50, event_size: str | None = None,
                event_threshold: float = 0.2, pm=None, progress: Progress | None = None) -> dict:
     """Render a dataset; returns the summary (also the basis of meta.json)."""
@@ -88,8 +90,8 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     rend = pm.get("renderers", renderer)
     if not stage.exists():
         raise RoadtwinError(f"{stage}: no such file")
-    town = load_town(stage)
-    mesh = build_render_mesh(town, defect_types=pm.registry("defect_types").keys(), material=material, seed=seed)
+    town = load_town(stage, looks=True, variants={"roadMaterial": material} if material else None)
+    mesh = build_render_mesh(town, defect_types=pm.registry("defect_types").keys())
     lanes = stage_lanes(stage)
     rng = np.random.default_rng(seed)
     ground = None
@@ -174,13 +176,13 @@ def render(
     events: bool = typer.Option(False, "--events", help="also simulate an event camera on a continuous drive"),
     formats: Optional[str] = typer.Option(None, "--formats", help="comma-separated: kitti,mmseg,coco,depth,normal "
                                           "(default: all that apply)"),
-    seed: int = typer.Option(0, "--seed", help="random seed for poses and textures"),
+    seed: int = typer.Option(0, "--seed", help="random seed for poses"),
     hfov: float = typer.Option(90.0, "--hfov", help="horizontal field of view in degrees"),
     height: float = typer.Option(1.5, "--height", help="camera height above the road in m"),
     poses: Optional[Path] = typer.Option(None, "--poses", help="JSON poses file instead of lane sampling"),
     weather: str = typer.Option("clear", "--weather", help="clear | fog | wet | dusk"),
-    material: str = typer.Option("kind", "--material", help="road material rule: kind | random | asphalt | "
-                                 "cobblestone | cement"),
+    material: Optional[str] = typer.Option(None, "--material", help="select the stage's roadMaterial variant "
+                                           "(e.g. asphalt | cobblestone | cement; default: the stage's own)"),
     renderer: str = typer.Option("warp", "--renderer", help="renderer plugin name"),
     device: Optional[str] = typer.Option(None, "--device", help="cpu | cuda | cuda:N (default: the renderer's)"),
     backend: str = typer.Option("auto", "--backend", help="ray caster: auto | warp | open3d (CPU)"),

@@ -147,7 +147,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         if preview:
             from .preview import write_preview
 
-            write_preview(tmp / "preview.png", layout, merged, owners, placements)
+            write_preview(tmp / "preview.png", town, pm=pm,
+                          title=f"{layout.name}: {len(layout.segments)} segments, {len(placements)} defects")
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     outdir = Path(outdir).resolve()
     return ComposeResult(outdir, outdir / "town.usda", summary)

@@ -284,7 +284,50 @@ def town_stage(tmp_path_factory):
     from roadtwin_core.compose import compose
 
     out = tmp_path_factory.mktemp("town") / "town"
-    return compose(ROOT / "stages/town.usda", out, defects=3, surface="flat", preview=False).town
+    town = compose(ROOT / "stages/town.usda", out, defects=3, surface="flat", preview=False).town
+    retexture(town)
+    return town
+
+
+def retexture(town: Path) -> None:
+    """What a user re-texturing the town in another tool writes: a strongest sublayer binding a
+    noise texture (world-planar st, 4 m a repeat) to every road and defect mesh. Makes the
+    sample town's appearance independent of the composer's own looks (events need texture)."""
+    from PIL import Image
+    from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
+
+    rng = np.random.default_rng(0)
+    (town.parent / "textures").mkdir(exist_ok=True)
+    noise = cv2.resize(rng.integers(40, 160, size=(16, 16, 3), dtype=np.uint8), (64, 64), interpolation=cv2.INTER_CUBIC)
+    Image.fromarray(noise).save(town.parent / "textures/test_noise.png")
+    src = Usd.Stage.Open(str(town))
+    root = src.GetDefaultPrim().GetPath()
+    layer_path = town.parent / "layers/test_looks.usda"
+    stage = Usd.Stage.CreateNew(str(layer_path))
+    mat = UsdShade.Material.Define(stage, root.AppendPath("TestLooks/Noise"))
+    surf = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("Surface"))
+    surf.CreateIdAttr("UsdPreviewSurface")
+    mat.CreateSurfaceOutput().ConnectToSource(surf.ConnectableAPI(), "surface")
+    tex = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("Tex"))
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set("../textures/test_noise.png")
+    reader = UsdShade.Shader.Define(stage, mat.GetPath().AppendChild("St"))
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("st")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+    surf.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    surf.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+    for prim in src.Traverse():
+        if prim.IsA(UsdGeom.Mesh) and "/Collision/" not in str(prim.GetPath()):
+            pts = np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get(), np.float32)
+            over = stage.OverridePrim(prim.GetPath())
+            UsdGeom.PrimvarsAPI(over).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                    UsdGeom.Tokens.vertex).Set(Vt.Vec2fArray.FromNumpy(pts[:, :2] / 4))
+            UsdShade.MaterialBindingAPI.Apply(over).Bind(mat)
+    stage.GetRootLayer().Save()
+    root_layer = Sdf.Layer.FindOrOpen(str(town))
+    root_layer.subLayerPaths.insert(0, "./layers/test_looks.usda")
+    root_layer.Save()
 
 
 def defect_poses(stage: Path) -> list[dict]:
@@ -403,6 +446,41 @@ def test_dataset_module_imports_torch_lazily():
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
+# --------------------------------------------------------------------------- preview.png
+def test_preview_of_composed_town(town_stage, pm, tmp_path, renderer):
+    """One perspective render beside the map; its camera is 2 m above a driving lane and sees a
+    defect (checked with the renderer's own instance map of that camera)."""
+    from PIL import Image
+
+    from roadtwin_core.preview import write_preview
+    from roadtwin_core.usd import load_town
+
+    res = write_preview(tmp_path / "p.png", town_stage, pm=pm, title="t")
+    assert res["note"] is None and res["spot"].defects_ahead >= 1
+    w, h = Image.open(tmp_path / "p.png").size
+    assert w > 2 * h                                               # render + map side by side
+    cam = res["camera"]
+    mesh = build_render_mesh(load_town(town_stage, looks=True))
+    fr = one(renderer, mesh, cam, shade=False)
+    assert (fr.instance > 0).sum() > 20
+    assert (fr.semantic[-1] == mesh.classes.index("driving")).mean() > 0.3     # on a driving lane
+    ground = mesh.vertices[:, 2][np.linalg.norm(mesh.vertices[:, :2] - cam.position[:2], axis=1) < 3].mean()
+    assert 1.5 <= cam.position[2] - ground <= 2.5
+
+
+def test_preview_without_a_renderer_shows_the_map_alone(town_stage, tmp_path):
+    from PIL import Image
+
+    from roadtwin_core.preview import write_preview
+
+    bare = PluginManager(load_entry_points=False)
+    bare.register(roadtwin_defects, name="defects")
+    res = write_preview(tmp_path / "p.png", town_stage, pm=bare)
+    assert res["camera"] is None and "no perspective view" in res["note"] and "warp" in res["note"]
+    w, h = Image.open(tmp_path / "p.png").size
+    assert w < 1.6 * h
+
+
 # --------------------------------------------------------------------------- bad input
 @pytest.fixture()
 def earlier(tmp_path):
@@ -424,6 +502,7 @@ def assert_untouched(out: Path) -> None:
     ({"formats": "kitti"}, "add --stereo"),
     ({"weather": "snow"}, "unknown weather"),
     ({"renderer": "nope"}, "unknown renderer 'nope'"),
+    ({"material": "marble"}, "roadMaterial"),
 ])
 def test_bad_options(town_stage, pm, earlier, kwargs, message):
     with pytest.raises(RoadtwinError, match=message):

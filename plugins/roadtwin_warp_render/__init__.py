@@ -2,8 +2,9 @@
 
 Ray casting on warp (CPU and CUDA) over one labelled triangle mesh of the town: z-depth,
 camera-frame normals, semantic classes, defect instances, rectified-stereo disparity with an
-occlusion mask, and shaded RGB (procedural asphalt / cobblestone / cement, darker wet defects,
-sun and sky with ray-traced shadows, fog, wet road, dusk). The kernels live in ``raycast.py``
+occlusion mask, and shaded RGB from the materials bound in the stage (UsdPreviewSurface diffuse,
+roughness and normal textures, MIP-mapped), sun and sky with ray-traced shadows, fog, wet road,
+dusk. The kernels live in ``raycast.py``
 and use only numpy and warp, so they are benchmarked without USD (``bench/render.py``).
 ``roadtwin render`` (``roadtwin_core.cli_render``) drives it and writes the datasets.
 """

@@ -1,20 +1,26 @@
-"""Ray-cast G-buffer and procedural shading on warp: numpy + warp only.
+"""Ray-cast G-buffer and textured shading on warp: numpy + warp only.
 
 This file imports nothing but numpy and warp, so ``bench/render.py`` loads it by path on a GPU
 machine with no USD (and no roadtwin) installed. Everything is plain arrays:
 
-- the scene is one ``wp.Mesh`` of all triangles (roads and defects) with per-face arrays:
-  semantic class id, instance id (0 = not a defect), material id and a tint in [0, 1) (one value
-  per road segment, for per-segment variation);
+- the scene is one ``wp.Mesh`` of all triangles (roads, defects, lane markings) with per-face
+  arrays: semantic class id, instance id (0 = not a defect), material id and the texture
+  coordinates (st) of the face's three corners;
+- materials are images (what the stage's ``UsdPreviewSurface`` materials bind: linear diffuse,
+  roughness, tangent-space normal map; constants are 1x1 images) packed into one atlas with
+  box-filtered MIP levels (``build_textures``);
 - a camera is a pinhole (fx, fy, cx, cy, width, height) with a camera-to-world rotation whose
   columns are the camera's x (right), y (down), z (forward) axes in world coordinates (OpenCV
   convention) and a centre; pixel (i, j) looks through image point (i, j) (pixel centres at
   integer coordinates, as in OpenCV's projection);
 - the G-buffer holds, per pixel: z-depth along the optical axis (0 = no hit), ray length, the
   unit normal in camera coordinates (facing the camera), class, instance and face id (-1);
-- shading turns a G-buffer into linear RGB radiance: procedural asphalt / cobblestone / cement
-  textures in world XY, defects darker, rougher and wet-looking, a sun with ray-traced shadows,
-  a sky gradient by direction, wet-road specular and sky reflection, exponential fog.
+- shading turns a G-buffer into linear RGB radiance: st interpolated barycentrically at the hit,
+  a trilinear MIP lookup per map (level from the pixel's footprint on the surface, repeat /
+  clamp / mirror wrapping), the normal map applied in the face's tangent frame (the st
+  gradient dP/ds, dP/dt: exact for world-planar and lane-aligned st alike), Lambert diffuse
+  from a sun with ray-traced shadows plus sky ambient, a roughness-driven specular lobe, a sky
+  gradient by direction, wet-road darkening and sky reflection, exponential fog.
 
 World: Z up, metres. Nothing here knows about USD, files or the plugin manager.
 """
@@ -26,8 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-MATERIALS = ("asphalt", "cobblestone", "cement")
-MAT_ASPHALT, MAT_COBBLESTONE, MAT_CEMENT = 0, 1, 2
+WRAP_MODES = {"repeat": 0, "clamp": 1, "mirror": 2}
 
 
 @wp.struct
@@ -57,25 +62,46 @@ class Light:
     seed: int
 
 
+@wp.struct
+class Textures:
+    """Every material image in one atlas: MIP levels (box-filtered, level 0 first) of every
+    map stored row-major one after the other, top row first. A map is an image with its levels;
+    a material names its diffuse, roughness and (optional, -1) normal maps."""
+
+    atlas: wp.array(dtype=wp.vec3)
+    level_offset: wp.array(dtype=wp.int32)
+    level_w: wp.array(dtype=wp.int32)
+    level_h: wp.array(dtype=wp.int32)
+    map_first: wp.array(dtype=wp.int32)     # first level of each map
+    map_levels: wp.array(dtype=wp.int32)
+    map_wrap_s: wp.array(dtype=wp.int32)    # 0 repeat, 1 clamp, 2 mirror
+    map_wrap_t: wp.array(dtype=wp.int32)
+    mat_diffuse: wp.array(dtype=wp.int32)
+    mat_rough: wp.array(dtype=wp.int32)
+    mat_normal: wp.array(dtype=wp.int32)
+    mat_metallic: wp.array(dtype=float)
+
+
+@wp.struct
+class Faces:
+    """Per-face shading data: material, st of the 3 corners (3 entries a face), st gradient
+    (dP/ds, dP/dt: the tangent frame) and st units per metre (for the MIP level)."""
+
+    points: wp.array(dtype=wp.vec3)
+    indices: wp.array(dtype=wp.int32)
+    mat: wp.array(dtype=wp.int32)
+    inst: wp.array(dtype=wp.int32)
+    uv: wp.array(dtype=wp.vec2)
+    tangent: wp.array(dtype=wp.vec3)
+    bitangent: wp.array(dtype=wp.vec3)
+    st_per_m: wp.array(dtype=float)
+
+
 # --------------------------------------------------------------------------------- helpers
 @wp.func
 def cam_ray(cam: Cam, i: int, j: int):
     dc = wp.vec3((float(i) - cam.cx) / cam.fx, (float(j) - cam.cy) / cam.fy, 1.0)
     return wp.normalize(cam.rot * dc), wp.length(dc)
-
-
-@wp.func
-def hash01(seed: int, a: int, b: int) -> float:
-    """Deterministic value in [0, 1) for an integer lattice cell."""
-    s = wp.rand_init(seed, a * 73856093 + b * 19349663)
-    return wp.randf(s)
-
-
-@wp.func
-def fade(footprint: float, wavelength: float) -> float:
-    """Weight of a texture octave: 1 when a pixel is much smaller than its wavelength, 0 when
-    the pixel covers a whole period (a cheap band limit against aliasing)."""
-    return wp.clamp(1.5 - 2.0 * footprint / wavelength, 0.0, 1.0)
 
 
 @wp.func
@@ -93,80 +119,96 @@ def sky(d: wp.vec3, L: Light) -> wp.vec3:
     return c
 
 
+# --------------------------------------------------------------------------------- textures
 @wp.func
-def asphalt(seed: int, x: float, y: float, tint: float, fp: float) -> wp.vec3:
-    s1 = wp.rand_init(seed + 11)
-    s2 = wp.rand_init(seed + 12)
-    s3 = wp.rand_init(seed + 13)
-    a = 0.095 + 0.02 * tint
-    a = a + 0.020 * wp.noise(s1, wp.vec2(x * 0.7, y * 0.7))
-    a = a + 0.018 * wp.noise(s2, wp.vec2(x * 9.0, y * 9.0)) * fade(fp, 0.11)
-    a = a + 0.030 * wp.noise(s3, wp.vec2(x * 45.0, y * 45.0)) * fade(fp, 0.022)
-    # light aggregate chips: a round stone at a random spot in some 1.5 cm cells
-    w = fade(fp, 0.03)
-    if w > 0.0:
-        gx = x * 66.0
-        gy = y * 66.0
-        cx = int(wp.floor(gx))
-        cy = int(wp.floor(gy))
-        st = wp.rand_init(seed + 14, cx * 73856093 + cy * 19349663)
-        if wp.randf(st) < 0.06:
-            ox = float(cx) + 0.25 + 0.5 * wp.randf(st)
-            oy = float(cy) + 0.25 + 0.5 * wp.randf(st)
-            r = 0.2 + 0.2 * wp.randf(st)
-            if (gx - ox) * (gx - ox) + (gy - oy) * (gy - oy) < r * r:
-                a = a + (0.04 + 0.05 * wp.randf(st)) * w
-    a = wp.max(a, 0.02)
-    return wp.vec3(a, a * 0.99, a * 1.03)
+def wrap_index(i: int, n: int, mode: int) -> int:
+    """Texel index ``i`` folded into [0, n): 0 repeat, 1 clamp, 2 mirror."""
+    r = int(0)
+    if mode == 1:
+        r = wp.clamp(i, 0, n - 1)
+    elif mode == 2:
+        p = ((i % (2 * n)) + 2 * n) % (2 * n)
+        r = p
+        if p >= n:
+            r = 2 * n - 1 - p
+    else:
+        r = ((i % n) + n) % n
+    return r
 
 
 @wp.func
-def cement(seed: int, x: float, y: float, tint: float, fp: float) -> wp.vec3:
-    slab = 1.5
-    u = x / slab
-    v = y / slab
-    iu = int(wp.floor(u))
-    iv = int(wp.floor(v))
-    du = wp.min(u - float(iu), 1.0 - (u - float(iu))) * slab
-    dv = wp.min(v - float(iv), 1.0 - (v - float(iv))) * slab
-    a = 0.36 + 0.08 * tint + 0.05 * (hash01(seed + 21, iu, iv) - 0.5)
-    a = a + 0.035 * wp.noise(wp.rand_init(seed + 22), wp.vec2(x * 2.5, y * 2.5))
-    a = a + 0.02 * wp.noise(wp.rand_init(seed + 23), wp.vec2(x * 30.0, y * 30.0)) * fade(fp, 0.033)
-    if wp.min(du, dv) < 0.008:
-        a = a * (1.0 - 0.55 * fade(fp, 0.05))
-    return wp.vec3(a * 1.02, a, a * 0.96)
+def fold_coord(x: float, mode: int) -> float:
+    """Texture coordinate reduced to one period before scaling to texels (float32 keeps
+    sub-texel precision for st in the hundreds: a town a few km long)."""
+    r = x
+    if mode == 0:
+        r = x - wp.floor(x)
+    elif mode == 2:
+        r = x - 2.0 * wp.floor(x * 0.5)
+    return r
 
 
 @wp.func
-def cobble_cell(x: float, y: float):
-    """Running-bond stones of 0.18 x 0.11 m: (row, col, fu, fv) with fu, fv in [0, 1)."""
-    v = y / 0.11
-    row = int(wp.floor(v))
-    u = x / 0.18 + 0.5 * float(row % 2)
-    col = int(wp.floor(u))
-    return row, col, u - float(col), v - float(row)
+def texel(tex: Textures, off: int, w: int, i: int, j: int) -> wp.vec3:
+    return tex.atlas[off + j * w + i]
 
 
 @wp.func
-def cobblestone(seed: int, x: float, y: float, tint: float, fp: float) -> wp.vec3:
-    row, col, fu, fv = cobble_cell(x, y)
-    h = hash01(seed + 31, col, row)
-    a = 0.16 + 0.10 * h + 0.04 * tint
-    a = a + 0.02 * wp.noise(wp.rand_init(seed + 32), wp.vec2(x * 40.0, y * 40.0)) * fade(fp, 0.025)
-    d = wp.min(wp.min(fu, 1.0 - fu) * 0.18, wp.min(fv, 1.0 - fv) * 0.11)
-    w = fade(fp, 0.06)
-    if d < 0.01:
-        a = a * (1.0 - 0.6 * w)
-    warm = 0.03 * (hash01(seed + 33, col, row) - 0.5)
-    return wp.vec3(a + warm, a, a - warm)
+def bilinear(tex: Textures, level: int, ws: int, wt: int, s: float, t: float) -> wp.vec3:
+    """Bilinear lookup in one MIP level; st (0, 0) is the image's lower-left corner (USD)."""
+    off = tex.level_offset[level]
+    w = tex.level_w[level]
+    h = tex.level_h[level]
+    x = s * float(w) - 0.5
+    y = (1.0 - t) * float(h) - 0.5
+    x0 = wp.floor(x)
+    y0 = wp.floor(y)
+    fx = x - x0
+    fy = y - y0
+    i0 = wrap_index(int(x0), w, ws)
+    i1 = wrap_index(int(x0) + 1, w, ws)
+    j0 = wrap_index(int(y0), h, wt)
+    j1 = wrap_index(int(y0) + 1, h, wt)
+    top = texel(tex, off, w, i0, j0) * (1.0 - fx) + texel(tex, off, w, i1, j0) * fx
+    bot = texel(tex, off, w, i0, j1) * (1.0 - fx) + texel(tex, off, w, i1, j1) * fx
+    return top * (1.0 - fy) + bot * fy
 
 
 @wp.func
-def cobble_bump(x: float, y: float, n: wp.vec3, fp: float) -> wp.vec3:
-    """Rounded stone tops: tilt the shading normal away from each stone's centre."""
-    row, col, fu, fv = cobble_cell(x, y)
-    k = 0.7 * fade(fp, 0.1)
-    return wp.normalize(n + wp.vec3((fu - 0.5) * k, (fv - 0.5) * k, 0.0))
+def sample_map(tex: Textures, m: int, s: float, t: float, footprint_st: float) -> wp.vec3:
+    """Trilinear MIP lookup: the level whose texel matches the pixel's footprint on the
+    surface (``footprint_st`` in st units), blended with the next coarser one."""
+    first = tex.map_first[m]
+    n = tex.map_levels[m]
+    ws = tex.map_wrap_s[m]
+    wt = tex.map_wrap_t[m]
+    su = fold_coord(s, ws)
+    tu = fold_coord(t, wt)
+    size = float(wp.max(tex.level_w[first], tex.level_h[first]))
+    lod = wp.clamp(wp.log2(wp.max(footprint_st * size, 1.0e-8)), 0.0, float(n - 1))
+    l0 = int(wp.floor(lod))
+    f = lod - float(l0)
+    c = bilinear(tex, first + l0, ws, wt, su, tu)
+    if f > 0.0 and l0 + 1 < n:
+        c = c * (1.0 - f) + bilinear(tex, first + l0 + 1, ws, wt, su, tu) * f
+    return c
+
+
+@wp.func
+def tangent_frame(n: wp.vec3, tan: wp.vec3, bit: wp.vec3):
+    """Unit tangent (along +s) and bitangent (along +t) orthogonal to ``n``, from the face's st
+    gradient; where that is degenerate (st constant on the face) world X / Y stand in."""
+    t = tan - n * wp.dot(n, tan)
+    if wp.length(t) < 1.0e-6:
+        t = wp.vec3(1.0, 0.0, 0.0) - n * n[0]
+        if wp.length(t) < 1.0e-6:
+            t = wp.vec3(0.0, 1.0, 0.0) - n * n[1]
+    t = wp.normalize(t)
+    b = bit - n * wp.dot(n, bit) - t * wp.dot(t, bit)
+    if wp.length(b) < 1.0e-6:
+        b = wp.cross(n, t)
+    b = wp.normalize(b)
+    return t, b
 
 
 # --------------------------------------------------------------------------------- kernels
@@ -199,9 +241,27 @@ def gbuffer_kernel(mesh: wp.uint64, face_class: wp.array(dtype=wp.int32), face_i
         face[tid] = -1
 
 
+@wp.func
+def barycentric(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.vec3:
+    v0 = b - a
+    v1 = c - a
+    v2 = p - a
+    d00 = wp.dot(v0, v0)
+    d01 = wp.dot(v0, v1)
+    d11 = wp.dot(v1, v1)
+    d20 = wp.dot(v2, v0)
+    d21 = wp.dot(v2, v1)
+    den = d00 * d11 - d01 * d01
+    w1 = float(0.0)
+    w2 = float(0.0)
+    if den != 0.0:
+        w1 = (d11 * d20 - d01 * d21) / den
+        w2 = (d00 * d21 - d01 * d20) / den
+    return wp.vec3(1.0 - w1 - w2, w1, w2)
+
+
 @wp.kernel
-def shade_kernel(mesh: wp.uint64, face_mat: wp.array(dtype=wp.int32), face_inst: wp.array(dtype=wp.int32),
-                 face_tint: wp.array(dtype=float), cam: Cam, L: Light,
+def shade_kernel(mesh: wp.uint64, F: Faces, tex: Textures, cam: Cam, L: Light,
                  dist: wp.array(dtype=float), normal: wp.array(dtype=wp.vec3), face: wp.array(dtype=wp.int32),
                  rgb: wp.array(dtype=wp.vec3)):
     tid = wp.tid()
@@ -215,31 +275,32 @@ def shade_kernel(mesh: wp.uint64, face_mat: wp.array(dtype=wp.int32), face_inst:
     t = dist[tid]
     p = cam.pos + d * t
     n = cam.rot * normal[tid]
-    fp = t / cam.fx  # metres per pixel at the hit, roughly
-    mat = face_mat[f]
-    tint = face_tint[f]
-    defect = face_inst[f] > 0
-    x = p[0]
-    y = p[1]
+    v = -d
+    # texture coordinates: barycentric interpolation of the face's corner st
+    bw = barycentric(p, F.points[F.indices[3 * f]], F.points[F.indices[3 * f + 1]], F.points[F.indices[3 * f + 2]])
+    uv = F.uv[3 * f] * bw[0] + F.uv[3 * f + 1] * bw[1] + F.uv[3 * f + 2] * bw[2]
+    # pixel footprint on the surface in st units: t / fx metres across the ray, stretched by
+    # 1 / cos(incidence) along the slope; the geometric mean of the two axes picks the MIP level
+    # (isotropic filtering: a little blur on grazing roads instead of shimmer)
+    cosi = wp.max(wp.abs(wp.dot(n, d)), 0.02)
+    fp = (t / cam.fx) / wp.sqrt(cosi) * F.st_per_m[f]
+    m = F.mat[f]
+    albedo = sample_map(tex, tex.mat_diffuse[m], uv[0], uv[1], fp)
+    rough = wp.clamp(sample_map(tex, tex.mat_rough[m], uv[0], uv[1], fp)[0], 0.02, 1.0)
+    metallic = tex.mat_metallic[m]
     ns = n
-    albedo = wp.vec3(0.0)
-    if mat == 1:
-        albedo = cobblestone(L.seed, x, y, tint, fp)
-        ns = cobble_bump(x, y, n, fp)
-    elif mat == 2:
-        albedo = cement(L.seed, x, y, tint, fp)
-    else:
-        albedo = asphalt(L.seed, x, y, tint, fp)
+    nm_id = tex.mat_normal[m]
+    if nm_id >= 0:
+        nt = sample_map(tex, nm_id, uv[0], uv[1], fp)
+        if nt[2] > 1.0e-3:
+            tt, bb = tangent_frame(n, F.tangent[f], F.bitangent[f])
+            ns = wp.normalize(tt * nt[0] + bb * nt[1] + n * nt[2])
+            if wp.dot(ns, v) < 0.0:      # a bump can not face away from the viewer
+                ns = wp.normalize(ns - v * (wp.dot(ns, v) - 0.01))
     wet = L.wetness
-    rough = 0.0
-    if defect:
-        # exposed base course: darker, grainier, holding water
-        g = wp.noise(wp.rand_init(L.seed + 41), wp.vec2(x * 30.0, y * 30.0)) * fade(fp, 0.033)
-        g2 = wp.noise(wp.rand_init(L.seed + 42), wp.vec2(x * 6.0, y * 6.0))
-        albedo = albedo * (0.5 + 0.18 * g + 0.1 * g2) + wp.vec3(0.012, 0.008, 0.0)
-        wet = wp.max(wet, 0.55)
-        rough = 1.0
     albedo = albedo * (1.0 - 0.45 * wet)
+    spec_col = wp.vec3(0.04, 0.04, 0.04) * (1.0 - metallic) + albedo * metallic
+    diffuse = albedo * (1.0 - metallic)
     # sun: Lambert with a ray-traced shadow
     ndl = wp.dot(ns, L.sun_dir)
     vis = 1.0
@@ -250,13 +311,20 @@ def shade_kernel(mesh: wp.uint64, face_mat: wp.array(dtype=wp.int32), face_inst:
             vis = 0.0
     sky_up = (L.sky_zenith + L.sky_horizon) * 0.5
     amb = sky_up * (L.ambient * (0.6 + 0.4 * ns[2]))
-    c = wp.cw_mul(albedo, L.sun_rgb * (wp.max(ndl, 0.0) * vis) + amb)
-    # specular sheen (Blinn-Phong) and sky reflection, both growing with wetness
-    v = -d
-    h = wp.normalize(L.sun_dir + v)
-    shin = 30.0 + 400.0 * wet - 20.0 * rough
-    ks = 0.02 + 0.5 * wet
-    c = c + L.sun_rgb * (ks * wp.pow(wp.max(wp.dot(ns, h), 0.0), shin) * vis)
+    c = wp.cw_mul(diffuse, L.sun_rgb * (wp.max(ndl, 0.0) * vis) + amb)
+    # sun specular: normalized Blinn-Phong lobe from the material's roughness (alpha = r^2,
+    # exponent 2 / alpha^2 - 2), Schlick Fresnel, Kelemen visibility; a water film smooths it
+    if vis > 0.0:
+        r_eff = rough * (1.0 - 0.75 * wet)
+        alpha = wp.max(r_eff * r_eff, 0.03)
+        shin = wp.clamp(2.0 / (alpha * alpha) - 2.0, 1.0, 2000.0)
+        h = wp.normalize(L.sun_dir + v)
+        ndh = wp.max(wp.dot(ns, h), 0.0)
+        vdh = wp.max(wp.dot(v, h), 0.05)
+        fr = spec_col + (wp.vec3(1.0, 1.0, 1.0) - spec_col) * wp.pow(1.0 - vdh, 5.0)
+        lobe = (shin + 2.0) / 8.0 * wp.pow(ndh, shin) / (vdh * vdh) * ndl
+        c = c + wp.cw_mul(fr, L.sun_rgb) * lobe
+    # sky reflection of a wet road (a mirror-like water film)
     cosv = wp.clamp(wp.dot(ns, v), 0.0, 1.0)
     fres = 0.02 + 0.98 * wp.pow(1.0 - cosv, 5.0)
     r = d - ns * (2.0 * wp.dot(d, ns))
@@ -447,11 +515,113 @@ class GBuffer:
         return out
 
 
-class RaycastScene:
-    """One triangle mesh with per-face labels on a warp device, and the kernels to view it."""
+def mip_levels(img: np.ndarray) -> list[np.ndarray]:
+    """Box-filtered MIP pyramid (level 0 = the image) down to 1x1. An odd side is first padded
+    with its own first row/column (the texture repeats), so a level's mean stays the image's
+    mean for power-of-two sizes."""
+    levels = [np.ascontiguousarray(img, dtype=np.float32)]
+    a = levels[0]
+    while a.shape[0] > 1 or a.shape[1] > 1:
+        if a.shape[0] > 1:
+            if a.shape[0] % 2:
+                a = np.concatenate([a, a[:1]], axis=0)
+            a = 0.5 * (a[0::2] + a[1::2])
+        if a.shape[1] > 1:
+            if a.shape[1] % 2:
+                a = np.concatenate([a, a[:, :1]], axis=1)
+            a = 0.5 * (a[:, 0::2] + a[:, 1::2])
+        levels.append(np.ascontiguousarray(a, dtype=np.float32))
+    return levels
 
-    def __init__(self, vertices, faces, face_class, face_instance, face_material, face_tint=None,
-                 device=None, background_class: int = 0):
+
+def _rgb(img) -> np.ndarray:
+    a = np.asarray(img, dtype=np.float32)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
+    return a[..., :3]
+
+
+GREY = {"name": "default_grey", "diffuse": np.full((1, 1, 3), 0.18, np.float32),
+        "roughness": np.full((1, 1, 1), 0.5, np.float32), "normal": None, "metallic": 0.0, "wrap": ("repeat", "repeat")}
+
+
+def build_textures(materials: list[dict], device) -> tuple[Textures, int]:
+    """Pack the materials' images (dicts: diffuse (H,W,3) linear, roughness (H,W,1), normal
+    (H,W,3) or None, metallic, wrap (s, t)) with their MIP levels into one atlas. An image used
+    by several materials is stored once. Returns the struct and the atlas size in texels."""
+    maps: dict = {}
+    chunks, lvl_off, lvl_w, lvl_h, first, nlev, wrap_s, wrap_t = [], [], [], [], [], [], [], []
+    total = 0
+
+    def add_map(img, wrap) -> int:
+        nonlocal total
+        key = (id(img), wrap)
+        if key in maps:
+            return maps[key]
+        levels = mip_levels(_rgb(img))
+        first.append(len(lvl_off))
+        nlev.append(len(levels))
+        wrap_s.append(WRAP_MODES.get(wrap[0], 0))
+        wrap_t.append(WRAP_MODES.get(wrap[1], 0))
+        for lv in levels:
+            lvl_off.append(total)
+            lvl_h.append(lv.shape[0])
+            lvl_w.append(lv.shape[1])
+            chunks.append(lv.reshape(-1, 3))
+            total += lv.shape[0] * lv.shape[1]
+        maps[key] = len(first) - 1
+        return maps[key]
+
+    md, mr, mn, mm = [], [], [], []
+    for mat in materials:
+        wrap = tuple(mat.get("wrap", ("repeat", "repeat")))
+        md.append(add_map(mat["diffuse"], wrap))
+        mr.append(add_map(mat["roughness"], wrap))
+        mn.append(add_map(mat["normal"], wrap) if mat.get("normal") is not None else -1)
+        mm.append(float(mat.get("metallic", 0.0)))
+    if total >= 2 ** 31:
+        raise ValueError(f"textures too large for one atlas ({total} texels)")
+    tex = Textures()
+
+    def ia(x):
+        return wp.array(np.asarray(x, np.int32), dtype=wp.int32, device=device)
+
+    tex.atlas = wp.array(np.concatenate(chunks), dtype=wp.vec3, device=device)
+    tex.level_offset, tex.level_w, tex.level_h = ia(lvl_off), ia(lvl_w), ia(lvl_h)
+    tex.map_first, tex.map_levels, tex.map_wrap_s, tex.map_wrap_t = ia(first), ia(nlev), ia(wrap_s), ia(wrap_t)
+    tex.mat_diffuse, tex.mat_rough, tex.mat_normal = ia(md), ia(mr), ia(mn)
+    tex.mat_metallic = wp.array(np.asarray(mm, np.float32), dtype=float, device=device)
+    return tex, total
+
+
+def face_st_frames(vertices: np.ndarray, faces: np.ndarray, face_uv: np.ndarray):
+    """Per face: dP/ds and dP/dt (the st gradient, the tangent frame of normal maps) and st
+    units per metre (sqrt of st area over world area, the MIP level's scale). A face whose st
+    is degenerate (constant or collinear) gets world X / Y and 0 (finest level)."""
+    p = vertices[faces]
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    d1, d2 = face_uv[:, 1] - face_uv[:, 0], face_uv[:, 2] - face_uv[:, 0]
+    det = d1[:, 0] * d2[:, 1] - d2[:, 0] * d1[:, 1]
+    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
+    ok = (np.abs(det) > 1e-12) & (area2 > 1e-14)
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)[:, None]
+    tan = (e1 * d2[:, 1:2] - e2 * d1[:, 1:2]) * inv
+    bit = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv
+    tan[~ok] = (1.0, 0.0, 0.0)
+    bit[~ok] = (0.0, 1.0, 0.0)
+    density = np.where(ok, np.sqrt(np.abs(det) / np.where(ok, area2, 1.0)), 0.0)
+    return tan.astype(np.float32), bit.astype(np.float32), density.astype(np.float32)
+
+
+class RaycastScene:
+    """One triangle mesh with per-face labels and materials on a warp device, and the kernels
+    to view it. ``face_uv`` (M, 3, 2): st per face corner; ``materials``: list of dicts (see
+    :func:`build_textures`), ``face_material`` indexes it (default: one neutral grey)."""
+
+    def __init__(self, vertices, faces, face_class, face_instance, face_material=None, face_uv=None,
+                 materials=None, device=None, background_class: int = 0):
         self.device = wp.get_device(device)
         v = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
         f = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
@@ -462,11 +632,23 @@ class RaycastScene:
         self.indices = wp.array(f.ravel(), dtype=wp.int32, device=self.device)
         self.mesh = wp.Mesh(points=self.points, indices=self.indices)
         m = len(f)
-        tint = np.zeros(m, np.float32) if face_tint is None else face_tint
+        materials = list(materials) if materials else [GREY]
+        fmat = np.zeros(m, np.int32) if face_material is None else np.asarray(face_material, np.int32).reshape(m)
+        if fmat.min() < 0 or fmat.max() >= len(materials):
+            raise ValueError("face material ids out of range")
+        uv = np.zeros((m, 3, 2), np.float32) if face_uv is None else np.asarray(face_uv, np.float32).reshape(m, 3, 2)
+        tan, bit, dens = face_st_frames(v.astype(np.float64), f, uv.astype(np.float64))
         self.face_class = wp.array(np.asarray(face_class, np.int32).reshape(m), dtype=wp.int32, device=self.device)
         self.face_inst = wp.array(np.asarray(face_instance, np.int32).reshape(m), dtype=wp.int32, device=self.device)
-        self.face_mat = wp.array(np.asarray(face_material, np.int32).reshape(m), dtype=wp.int32, device=self.device)
-        self.face_tint = wp.array(np.asarray(tint, np.float32).reshape(m), dtype=float, device=self.device)
+        F = Faces()
+        F.points, F.indices, F.inst = self.points, self.indices, self.face_inst
+        F.mat = wp.array(fmat, dtype=wp.int32, device=self.device)
+        F.uv = wp.array(uv.reshape(-1, 2), dtype=wp.vec2, device=self.device)
+        F.tangent = wp.array(tan, dtype=wp.vec3, device=self.device)
+        F.bitangent = wp.array(bit, dtype=wp.vec3, device=self.device)
+        F.st_per_m = wp.array(dens, dtype=float, device=self.device)
+        self.faces = F
+        self.textures, self.texels = build_textures(materials, self.device)
         self.background = int(background_class)
         self.max_t = 1.0e4
         self._buffers: dict = {}
@@ -485,8 +667,8 @@ class RaycastScene:
 
     def shade(self, cam: Cam, light: Light, gb: GBuffer) -> GBuffer:
         wp.launch(shade_kernel, dim=cam.width * cam.height, device=self.device,
-                  inputs=[self.mesh.id, self.face_mat, self.face_inst, self.face_tint, cam, light,
-                          gb.dist, gb.normal, gb.face], outputs=[gb.rgb])
+                  inputs=[self.mesh.id, self.faces, self.textures, cam, light, gb.dist, gb.normal, gb.face],
+                  outputs=[gb.rgb])
         return gb
 
     def stereo(self, cam: Cam, right_pos, baseline: float, gb: GBuffer) -> GBuffer:

@@ -1,6 +1,8 @@
 """The ``warp`` renderer: roadtwin cameras and scenes in, :class:`Frame` objects out.
 
-All ray casting and shading runs in the kernels of ``raycast.py`` (numpy + warp). On a CPU
+All ray casting and shading runs in the kernels of ``raycast.py`` (numpy + warp); what a
+surface looks like comes from the stage (``RenderMesh.materials``: the bound UsdPreviewSurface
+materials and their textures), never from code here. On a CPU
 device the primary (G-buffer) rays may instead go through open3d's RaycastingScene (Embree),
 which is about twice as fast as warp's scalar CPU traversal; shading, shadows and stereo
 occlusion stay in warp either way (``backend``: auto = open3d on CPU when installed, warp
@@ -44,7 +46,8 @@ class PreparedScene:
 class WarpRenderer:
     name = "warp"
     description = ("ray-cast renderer on warp (CPU/CUDA): depth, normals, classes, instances, stereo "
-                   "disparity with occlusion, procedural RGB with sun, shadows, fog, wet road, dusk")
+                   "disparity with occlusion, RGB from the stage's UsdPreviewSurface materials and textures "
+                   "with sun, shadows, fog, wet road, dusk")
     Params = RenderParams
 
     # ------------------------------------------------------------------ scene
@@ -70,7 +73,8 @@ class WarpRenderer:
         origin = np.floor((lo + hi) / 2.0)
         local = mesh.vertices - origin
         rs = rc.RaycastScene(local, mesh.faces, mesh.face_class, mesh.face_instance, mesh.face_material,
-                             mesh.face_tint, device=device, background_class=0)
+                             mesh.face_uv, [m.as_dict() for m in mesh.materials], device=device,
+                             background_class=0)
         rs.max_t = float(params.max_distance_m)
         if backend == "open3d":
             rs.enable_open3d()

@@ -9,14 +9,15 @@ from .cameras import (Camera, Intrinsics, Lane, StereoCamera, lane_trajectory, l
                       rotation_ypr, sample_lane_poses)
 from .events import EventSimulator, luminance
 from .frames import WEATHERS, Frame, RenderParams
-from .scene import (BASE_CLASSES, IGNORE_INDEX, MATERIAL_RULES, MATERIALS, GroundSampler, RenderMesh,
-                    build_render_mesh, class_names, stage_lanes)
+from .scene import (BASE_CLASSES, DEFAULT_MATERIAL, IGNORE_INDEX, MARKING_CLASS, GroundSampler, RenderMaterial,
+                    RenderMesh, build_render_mesh, class_names, stage_lanes)
 from .writers import FORMATS, DatasetWriter, parse_formats, rle_decode, rle_encode, to_srgb8
 
 __all__ = [
     "Camera", "Intrinsics", "Lane", "StereoCamera", "lane_trajectory", "load_poses_file", "look_from",
     "rotation_ypr", "sample_lane_poses", "EventSimulator", "luminance", "WEATHERS", "Frame", "RenderParams",
-    "BASE_CLASSES", "IGNORE_INDEX", "MATERIAL_RULES", "MATERIALS", "GroundSampler", "RenderMesh",
+    "BASE_CLASSES", "DEFAULT_MATERIAL", "IGNORE_INDEX", "MARKING_CLASS", "GroundSampler", "RenderMaterial",
+    "RenderMesh",
     "build_render_mesh", "class_names", "stage_lanes", "FORMATS", "DatasetWriter", "parse_formats",
     "rle_decode", "rle_encode", "to_srgb8",
 ]

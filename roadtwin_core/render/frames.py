@@ -26,7 +26,7 @@ class RenderParams:
     wetness: Optional[float] = field(None, lo=0.0, hi=1.0, doc="override: 0 dry .. 1 soaked road")
     shadows: bool = field(True, doc="ray-traced sun shadows")
     shade: bool = field(True, doc="compute RGB (off: G-buffer only)")
-    seed: int = field(0, lo=0, doc="texture seed")
+    seed: int = field(0, lo=0, doc="seed (kept for reproducible settings; textures come from the stage)")
     device: Optional[str] = field(None, doc="compute device, e.g. cpu or cuda:0 (default: the renderer's)")
     backend: str = field("auto", doc="ray caster: auto | warp | open3d (CPU only)")
     max_distance_m: float = field(1000.0, lo=1.0, doc="rays end here (background beyond)")

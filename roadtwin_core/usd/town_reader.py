@@ -1,5 +1,12 @@
 """Read a composed town stage back into numpy: what renderers, physics backends and planners
-consume (they never need to walk USD themselves)."""
+consume (they never need to walk USD themselves).
+
+Rendered meshes are the road segments, the defect pieces and the lane markings (meshes under a
+prim carrying ``roadtwin:marking:type``, i.e. ``/<root>/Markings/<id>``). With ``looks=True``
+each of them also gets its texture coordinates (``TownMesh.st``, per face corner) and its bound
+``UsdPreviewSurface`` material (``TownMesh.material``, see :mod:`.looks_reader`); physics and
+planning leave ``looks`` off, so a broken texture path never stops them.
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -9,15 +16,18 @@ import numpy as np
 from pxr import Usd, UsdGeom, UsdPhysics
 
 from ..errors import RoadtwinError
+from .looks_reader import TownMaterial, bound_material, corner_st
 from .stage import read_mesh
 
 
 @dataclass
 class TownMesh:
     path: str
-    kind: str                 # road segment kind ("driving", "sidewalk" ...) or "collision"
+    kind: str                 # road segment kind ("driving", "sidewalk" ...), marking type or "collision"
     vertices: np.ndarray      # (N,3) world
     faces: np.ndarray         # (M,3)
+    st: np.ndarray | None = None              # (M,3,2) texture coordinates per face corner (looks=True)
+    material: TownMaterial | None = None      # bound material (looks=True; None = unbound)
 
 
 @dataclass
@@ -38,6 +48,7 @@ class TownScene:
     roads: list[TownMesh] = field(default_factory=list)
     defects: list[TownDefect] = field(default_factory=list)
     colliders: list[TownMesh] = field(default_factory=list)
+    markings: list[TownMesh] = field(default_factory=list)   # kind = roadtwin:marking:type
     metadata: dict = field(default_factory=dict)
 
     def collision_mesh(self) -> tuple[np.ndarray, np.ndarray]:
@@ -64,7 +75,10 @@ def concat_meshes(meshes: list[TownMesh]) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(verts), np.concatenate(faces)
 
 
-def load_town(path: str | Path) -> TownScene:
+def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | None = None) -> TownScene:
+    """The town's meshes (world space). ``looks``: also read each rendered mesh's bound material
+    and st (see :mod:`.looks_reader`). ``variants``: variant selections on the root prim (e.g.
+    ``{"roadMaterial": "cobblestone"}``), made in the session layer, never saved."""
     path = Path(path)
     if not path.exists():
         raise RoadtwinError(f"{path}: no such file")
@@ -75,25 +89,81 @@ def load_town(path: str | Path) -> TownScene:
     if stage is None or not stage.GetDefaultPrim():
         raise RoadtwinError(f"{path}: not a USD stage with a defaultPrim")
     root = stage.GetDefaultPrim()
+    for vset, choice in (variants or {}).items():
+        _select_variant(stage, root, vset, choice, path)
     scene = TownScene(root.GetName(), str(path))
     scene.metadata = {a.GetName().split(":", 2)[-1]: a.Get() for a in root.GetAttributes()
                       if a.GetName().startswith(("roadtwin:layout:", "roadtwin:compose:"))}
     defects: dict[str, TownDefect] = {}
+    marking_types: dict[str, str] = {}
+    materials: dict = {}
     for prim in Usd.PrimRange(root):
         if prim.HasAttribute("roadtwin:defect:type") and prim.IsA(UsdGeom.Xform):
             attrs = {a.GetName().split(":")[-1]: a.Get() for a in prim.GetAttributes()
                      if a.GetName().startswith("roadtwin:defect:")}
             defects[str(prim.GetPath())] = TownDefect(prim.GetName(), str(attrs.get("type")), attrs, [])
             continue
+        marking = prim.GetAttribute("roadtwin:marking:type")
+        if marking and marking.HasValue():
+            marking_types[str(prim.GetPath())] = str(marking.Get())
         if not prim.IsA(UsdGeom.Mesh):
             continue
-        v, f = read_mesh(UsdGeom.Mesh(prim))
         if prim.HasAPI(UsdPhysics.CollisionAPI):
+            v, f = read_mesh(UsdGeom.Mesh(prim))
             scene.colliders.append(TownMesh(str(prim.GetPath()), "collision", v, f))
-        elif prim.HasAttribute("roadtwin:segment:kind"):
-            scene.roads.append(TownMesh(str(prim.GetPath()), str(prim.GetAttribute("roadtwin:segment:kind").Get()), v, f))
+            continue
+        if prim.HasAttribute("roadtwin:segment:kind"):
+            target, kind = scene.roads, str(prim.GetAttribute("roadtwin:segment:kind").Get())
         elif str(prim.GetParent().GetPath()) in defects:
-            d = defects[str(prim.GetParent().GetPath())]
-            d.pieces.append(TownMesh(str(prim.GetPath()), d.defect_type, v, f))
+            target, kind = defects[str(prim.GetParent().GetPath())].pieces, None
+        else:
+            kind = _marking_type(prim, marking_types)
+            if kind is None:
+                continue
+            target = scene.markings
+        if UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.invisible:
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        v, f = read_mesh(mesh)
+        if kind is None:
+            kind = defects[str(prim.GetParent().GetPath())].defect_type
+        tm = TownMesh(str(prim.GetPath()), kind, v, f)
+        if looks:
+            tm.material, tm.st = _looks(prim, mesh, len(f), materials)
+        target.append(tm)
     scene.defects = list(defects.values())
     return scene
+
+
+def _marking_type(prim, marking_types: dict[str, str]) -> str | None:
+    """The ``roadtwin:marking:type`` of the prim or its nearest ancestor that has one."""
+    p = prim
+    while p and not p.IsPseudoRoot():
+        t = marking_types.get(str(p.GetPath()))
+        if t is not None:
+            return t
+        p = p.GetParent()
+    return None
+
+
+def _looks(prim, mesh: UsdGeom.Mesh, n_faces: int, materials: dict):
+    mat = bound_material(prim, materials)
+    name = mat.st_name if mat is not None else "st"
+    st = corner_st(mesh, name, np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64))
+    if st is None and mat is not None and mat.textured:
+        raise RoadtwinError(f"{prim.GetPath()}: bound to textured material {mat.name} but has no primvars:{name}")
+    if st is not None and len(st) != n_faces:
+        raise RoadtwinError(f"{prim.GetPath()}: primvars:{name} does not match the mesh's faces")
+    return mat, st
+
+
+def _select_variant(stage, root, vset: str, choice: str, path: Path) -> None:
+    sets = root.GetVariantSets()
+    if not sets.HasVariantSet(vset):
+        raise RoadtwinError(f"{path}: the root prim {root.GetPath()} has no {vset!r} variant set "
+                            f"(has: {', '.join(sets.GetNames()) or 'none'})")
+    names = sets.GetVariantSet(vset).GetVariantNames()
+    if choice not in names:
+        raise RoadtwinError(f"{path}: {vset} variant {choice!r} is not one of {', '.join(names)}")
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        sets.GetVariantSet(vset).SetVariantSelection(choice)
