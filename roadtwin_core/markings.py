@@ -1,0 +1,249 @@
+"""Lane-marking meshes: the layout's marking curves painted on the merged, elevated road.
+
+Per :class:`~roadtwin_core.model.LaneMarking`, each painted line (``LaneMarking.lines()``) becomes
+2D paint polygons: every dash is its own piece (a substring of the boundary polyline, shifted
+sideways by the line's offset with shapely's ``offset_curve``, buffered to the line width with
+flat caps), botts dots are small discs. The paint is then cut where a defect removed it (minus
+the union of the defect footprints, grown by ``cut_margin_m`` so no paint hangs over a rim),
+clipped to the road outline, triangulated with Triangle (boundary and interior points at most
+``spacing_m`` apart) and draped: every vertex sits ``lift_m`` above the merged road surface
+under it (a vertical ray per vertex, :func:`roadtwin_core.geometry.vertical_ray_hits`).
+
+The road's own edges that cross the paint are constraint segments of that triangulation, so
+each paint triangle lies inside one road triangle and the draped paint is exactly parallel to
+the road. Without them a paint triangle is a chord over a creased road and dips under it near
+defect rims and on rough roads (measured: 2 mm under an ISO 8608 class D road).
+
+Dash positions are measured along the boundary polyline itself (``phase_m`` + k (dash + gap)),
+so both lines of a double marking break at the same stations. Curbs are kerbs, not paint: they
+draw nothing. Pure numpy/shapely/triangle, no USD.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+import triangle
+from shapely.geometry import LineString, Polygon
+from shapely.ops import substring
+
+from .errors import RoadtwinError
+from .geometry import polygon_loops, vertical_ray_hits
+from .model import LaneMarking, MergedSegment, Placement, RoadSegment
+
+LIFT_M = 0.005           # paint floats this far above the road (no z-fighting, no visible gap)
+CUT_MARGIN_M = 0.02      # paint stops this far outside a defect footprint
+SPACING_M = 0.5          # most distance between neighbouring marking vertices (draping resolution)
+BOTTS_PITCH_M = 1.2      # dot pitch when a botts-dots marking gives no dash/gap (4 ft, Caltrans)
+_CELL_M = 2.0            # spatial bucket of the height lookup
+_MIN_AREA_M2 = 1e-6      # slivers left by the cut below this are dropped
+
+
+@dataclass
+class MarkingMesh:
+    """One marking's paint, draped: world vertices (N,3) and triangles (M,3)."""
+
+    id: str
+    marking_type: str
+    color: str
+    vertices: np.ndarray
+    faces: np.ndarray
+
+
+def dash_intervals(length_m: float, dash_m: float, gap_m: float, phase_m: float = 0.0) -> list[tuple[float, float]]:
+    """Stations ``(start, end)`` along a polyline of ``length_m`` that carry paint.
+
+    Solid (``dash_m == 0``): the whole line. Broken: dashes start at ``phase_m + k (dash + gap)``;
+    the last one is cut at the line's end."""
+    if dash_m <= 0:
+        return [(0.0, length_m)]
+    pitch = dash_m + gap_m
+    starts = phase_m + pitch * np.arange(int(np.ceil(max(length_m - phase_m, 0.0) / pitch)))
+    return [(float(s), float(min(s + dash_m, length_m))) for s in starts if min(s + dash_m, length_m) - s > 1e-6]
+
+
+def line_paint(marking: LaneMarking) -> list[Polygon]:
+    """The marking's paint as separate 2D pieces (one per dash or dot), before any cut."""
+    base = LineString(marking.points)
+    length = base.length
+    half = marking.width_m / 2
+    pieces: list[Polygon] = []
+    for offset, dash, gap in marking.lines():
+        if marking.marking_type == "botts_dots":
+            pitch = dash + gap if dash + gap > 0 else BOTTS_PITCH_M
+            stations = marking.phase_m + pitch * np.arange(int(np.floor(max(length - marking.phase_m, 0) / pitch)) + 1)
+            for s in stations:
+                pieces.append(base.interpolate(float(s)).buffer(half, quad_segs=4))
+            continue
+        for s0, s1 in dash_intervals(length, dash, gap, marking.phase_m):
+            centre = substring(base, s0, s1)
+            if offset:
+                centre = centre.offset_curve(offset, join_style="mitre", mitre_limit=2.0)
+            for part in getattr(centre, "geoms", [centre]):
+                if part.length > 1e-6:
+                    pieces.append(part.buffer(half, cap_style="flat", join_style="mitre", mitre_limit=2.0))
+    return [p for p in pieces if not p.is_empty]
+
+
+class RoadSurface:
+    """The merged road as one queryable surface: outline (for clipping) and height under points."""
+
+    def __init__(self, segments: list[RoadSegment], merged: list[MergedSegment]) -> None:
+        self.polygons = [s.polygon() for s in segments]
+        self.outline_tree = shapely.STRtree(self.polygons)
+        edges = []
+        for m in merged:
+            e = np.sort(np.concatenate([m.faces[:, [0, 1]], m.faces[:, [1, 2]], m.faces[:, [2, 0]]]), axis=1)
+            e = np.unique(e, axis=0)
+            edges.append(m.vertices[e][:, :, :2])
+        self.edges = np.concatenate(edges) if edges else np.zeros((0, 2, 2))
+        self.edge_tree = shapely.STRtree(shapely.linestrings(self.edges))
+        self.tris = [m.vertices[m.faces] for m in merged]
+        self.boxes = np.array([[t[..., 0].min(), t[..., 1].min(), t[..., 0].max(), t[..., 1].max()]
+                               if len(t) else [np.inf, np.inf, -np.inf, -np.inf] for t in self.tris])
+
+    def outline_near(self, geom) -> shapely.Geometry:
+        idx = self.outline_tree.query(geom)
+        return shapely.union_all([self.polygons[i] for i in np.sort(idx)])
+
+    def edges_in(self, poly: Polygon) -> np.ndarray:
+        """The road's triangle edges clipped to ``poly``, as (K,2,2) segments."""
+        idx = np.sort(self.edge_tree.query(poly, predicate="intersects"))
+        if not len(idx):
+            return np.zeros((0, 2, 2))
+        pieces = shapely.intersection(shapely.linestrings(self.edges[idx]), poly)
+        segs = []
+        for g in pieces:
+            for line in getattr(g, "geoms", [g]):
+                if line.geom_type == "LineString" and line.length > 1e-6:
+                    c = np.asarray(line.coords)[:, :2]
+                    segs.append(np.stack([c[:-1], c[1:]], axis=1))
+        return np.concatenate(segs) if segs else np.zeros((0, 2, 2))
+
+    def heights(self, xy: np.ndarray) -> np.ndarray:
+        """Road surface z under each point: the first merged triangle a vertical ray hits, then
+        barycentric interpolation; a point no triangle covers (float noise on the outline) takes
+        the nearest triangle vertex's height."""
+        xy = np.asarray(xy, dtype=np.float64)
+        z = np.full(len(xy), np.nan)
+        if not len(xy):
+            return z
+        lo, hi = xy.min(axis=0), xy.max(axis=0)
+        near = np.flatnonzero((self.boxes[:, 0] <= hi[0]) & (self.boxes[:, 2] >= lo[0])
+                              & (self.boxes[:, 1] <= hi[1]) & (self.boxes[:, 3] >= lo[1]))
+        if not len(near):
+            raise RoadtwinError("lane marking lies off the road (no road surface under it)")
+        tri = np.concatenate([self.tris[i] for i in near])
+        tlo, thi = tri[:, :, :2].min(axis=1), tri[:, :, :2].max(axis=1)
+        cells = np.floor(xy / _CELL_M).astype(np.int64)
+        keys, inverse = np.unique(cells, axis=0, return_inverse=True)
+        inverse = inverse.ravel()
+        for k, (cx, cy) in enumerate(keys):
+            idx = np.flatnonzero(inverse == k)
+            p = xy[idx]
+            plo, phi = p.min(axis=0) - 1e-9, p.max(axis=0) + 1e-9
+            cand = np.flatnonzero((tlo[:, 0] <= phi[0]) & (thi[:, 0] >= plo[0])
+                                  & (tlo[:, 1] <= phi[1]) & (thi[:, 1] >= plo[1]))
+            if len(cand):
+                z[idx] = _heights_on(p, tri[cand])
+        missing = np.isnan(z)
+        if missing.any():
+            from scipy.spatial import cKDTree
+
+            pts = tri.reshape(-1, 3)
+            _, j = cKDTree(pts[:, :2]).query(xy[missing])
+            z[missing] = pts[j, 2]
+        return z
+
+
+def _heights_on(xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    hits = vertical_ray_hits(xy, tri)
+    found = hits.any(axis=1)
+    z = np.full(len(xy), np.nan)
+    t = tri[hits.argmax(axis=1)[found]]
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    e1, e2, r = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2], xy[found] - a[:, :2]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    u = (r[:, 0] * e2[:, 1] - r[:, 1] * e2[:, 0]) / det
+    v = (e1[:, 0] * r[:, 1] - e1[:, 1] * r[:, 0]) / det
+    z[found] = (1 - u - v) * a[:, 2] + u * b[:, 2] + v * c[:, 2]
+    return z
+
+
+def triangulate_paint(geom, spacing_m: float = SPACING_M, surface: RoadSurface | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle CDT of (multi)polygons, boundary points <= spacing apart, interior triangles no
+    larger than an equilateral of that side, the ``surface``'s road edges inside as constraints;
+    (N,2) vertices and (M,3) counter-clockwise faces."""
+    verts, faces, n = [], [], 0
+    polys = [geom] if isinstance(geom, Polygon) else list(getattr(geom, "geoms", []))
+    for poly in polys:
+        if not isinstance(poly, Polygon) or poly.area < _MIN_AREA_M2:
+            continue
+        dense = shapely.segmentize(poly, spacing_m)
+        loops = polygon_loops(dense)
+        pts = [*loops]
+        segs = [np.column_stack([np.arange(len(lp)), (np.arange(len(lp)) + 1) % len(lp)]) for lp in loops]
+        if surface is not None:
+            inner = surface.edges_in(poly)
+            pts.append(inner.reshape(-1, 2))
+            segs.append(np.arange(2 * len(inner)).reshape(-1, 2))
+        offsets = np.cumsum([0] + [len(p) for p in pts[:-1]])
+        segs = np.concatenate([sg + off for sg, off in zip(segs, offsets)])
+        # Snap to 0.1 um and merge duplicates: rings of a valid polygon may touch at a point and
+        # road edges end on the paint outline; Triangle refuses duplicate vertices.
+        pts, inv = np.unique(np.round(np.concatenate(pts), 7), axis=0, return_inverse=True)
+        segs = np.unique(np.sort(inv.ravel()[segs], axis=1), axis=0)
+        segs = segs[segs[:, 0] != segs[:, 1]]
+        data = {"vertices": pts, "segments": segs}
+        holes = [Polygon(r).representative_point().coords[0] for r in poly.interiors]
+        if holes:
+            data["holes"] = np.asarray(holes)
+        out = triangle.triangulate(data, f"pa{spacing_m ** 2 * np.sqrt(3) / 4:.6f}")
+        if "triangles" not in out or not len(out["triangles"]):
+            continue
+        verts.append(out["vertices"])
+        faces.append(out["triangles"] + n)
+        n += len(out["vertices"])
+    if not verts:
+        return np.zeros((0, 2)), np.zeros((0, 3), dtype=np.int64)
+    v, f = np.concatenate(verts), np.concatenate(faces).astype(np.int64)
+    a = (v[f[:, 1]] - v[f[:, 0]])
+    b = (v[f[:, 2]] - v[f[:, 0]])
+    flip = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0] < 0
+    f[flip] = f[flip][:, ::-1]
+    return v, f
+
+
+def build_markings(markings: list[LaneMarking], segments: list[RoadSegment], merged: list[MergedSegment],
+                   placements: list[Placement], *, lift_m: float = LIFT_M, cut_margin_m: float = CUT_MARGIN_M,
+                   spacing_m: float = SPACING_M) -> list[MarkingMesh]:
+    """Draped paint meshes, one per marking that keeps any paint (curbs and fully cut ones
+    are left out), in the order of ``markings``."""
+    if not markings:
+        return []
+    surface = RoadSurface(segments, merged)
+    holes = [Polygon(p.world_footprint()).buffer(cut_margin_m) for p in placements]
+    hole_tree = shapely.STRtree(holes) if holes else None
+    out = []
+    for m in markings:
+        pieces = line_paint(m)
+        if not pieces:
+            continue
+        paint = shapely.union_all(pieces)  # dashes stay apart; the lines of a double marking may touch
+        if hole_tree is not None:
+            near = hole_tree.query(paint)
+            if len(near):
+                paint = paint.difference(shapely.union_all([holes[i] for i in np.sort(near)]))
+        paint = paint.intersection(surface.outline_near(paint))
+        xy, faces = triangulate_paint(paint, spacing_m, surface)
+        if not len(faces):
+            continue
+        z = surface.heights(xy) + lift_m
+        out.append(MarkingMesh(m.id, m.marking_type, m.color, np.column_stack([xy, z]), faces))
+    return out
+
+
+__all__ = ["MarkingMesh", "RoadSurface", "build_markings", "dash_intervals", "line_paint", "triangulate_paint",
+           "LIFT_M", "CUT_MARGIN_M", "SPACING_M"]
