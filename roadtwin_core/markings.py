@@ -87,34 +87,58 @@ def line_paint(marking: LaneMarking) -> list[Polygon]:
 
 
 class RoadSurface:
-    """The merged road as one queryable surface: outline (for clipping) and height under points."""
+    """The merged road: its outline (for clipping) and, per marking, a :class:`RoadPatch` of the
+    triangles near the paint (built per marking so memory stays small on big towns)."""
 
     def __init__(self, segments: list[RoadSegment], merged: list[MergedSegment]) -> None:
         self.polygons = [s.polygon() for s in segments]
         self.outline_tree = shapely.STRtree(self.polygons)
-        edges = []
-        for m in merged:
-            e = np.sort(np.concatenate([m.faces[:, [0, 1]], m.faces[:, [1, 2]], m.faces[:, [2, 0]]]), axis=1)
-            e = np.unique(e, axis=0)
-            edges.append(m.vertices[e][:, :, :2])
-        self.edges = np.concatenate(edges) if edges else np.zeros((0, 2, 2))
-        self.edge_tree = shapely.STRtree(shapely.linestrings(self.edges))
-        self.tris = [m.vertices[m.faces] for m in merged]
-        self.boxes = np.array([[t[..., 0].min(), t[..., 1].min(), t[..., 0].max(), t[..., 1].max()]
-                               if len(t) else [np.inf, np.inf, -np.inf, -np.inf] for t in self.tris])
+        self.merged = merged
 
-    def outline_near(self, geom) -> shapely.Geometry:
-        idx = self.outline_tree.query(geom)
-        return shapely.union_all([self.polygons[i] for i in np.sort(idx)])
+    def near(self, geom) -> np.ndarray:
+        """Indices of the segments whose outline touches ``geom``."""
+        return np.sort(self.outline_tree.query(geom, predicate="intersects"))
+
+    def outline(self, segment_ids: np.ndarray) -> shapely.Geometry:
+        return shapely.union_all([self.polygons[i] for i in segment_ids])
+
+    def patch(self, segment_ids: np.ndarray, paint) -> "RoadPatch":
+        """The triangles of those segments that may touch ``paint``: those whose centroid lies
+        within their segment's longest edge of it (a triangle touching the paint always does)."""
+        tris = []
+        for i in segment_ids:
+            m = self.merged[i]
+            t = m.vertices[m.faces]
+            reach = float(np.linalg.norm(t[:, [1, 2, 0], :2] - t[:, :, :2], axis=-1).max())
+            c = t[:, :, :2].mean(axis=1)
+            zone = shapely.buffer(paint, reach, quad_segs=2)
+            shapely.prepare(zone)
+            tris.append(t[shapely.contains_xy(zone, c[:, 0], c[:, 1])])
+        return RoadPatch(np.concatenate(tris) if tris else np.zeros((0, 3, 3)))
+
+
+class RoadPatch:
+    """Merged road triangles (T,3,3) with an STRtree over their XY bounding boxes."""
+
+    def __init__(self, tris: np.ndarray) -> None:
+        self.tris = tris
+        lo, hi = tris[:, :, :2].min(axis=1), tris[:, :, :2].max(axis=1)
+        self.tree = shapely.STRtree(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))
 
     def edges_in(self, poly: Polygon) -> np.ndarray:
         """The road's triangle edges clipped to ``poly``, as (K,2,2) segments."""
-        idx = np.sort(self.edge_tree.query(poly, predicate="intersects"))
+        idx = np.sort(self.tree.query(poly, predicate="intersects"))
         if not len(idx):
             return np.zeros((0, 2, 2))
-        pieces = shapely.intersection(shapely.linestrings(self.edges[idx]), poly)
+        xy = self.tris[idx][:, :, :2]
+        edges = np.concatenate([xy[:, [0, 1]], xy[:, [1, 2]], xy[:, [2, 0]]])
+        # One copy of each shared edge (its two triangles list it in opposite directions).
+        flip = (edges[:, 0, 0] > edges[:, 1, 0]) | ((edges[:, 0, 0] == edges[:, 1, 0]) & (edges[:, 0, 1] > edges[:, 1, 1]))
+        edges[flip] = edges[flip][:, ::-1]
+        edges = np.unique(edges.reshape(-1, 4), axis=0).reshape(-1, 2, 2)
+        pieces = shapely.intersection(shapely.linestrings(edges), poly)
         segs = []
-        for g in pieces:
+        for g in pieces[~shapely.is_empty(pieces)]:
             for line in getattr(g, "geoms", [g]):
                 if line.geom_type == "LineString" and line.length > 1e-6:
                     c = np.asarray(line.coords)[:, :2]
@@ -122,36 +146,41 @@ class RoadSurface:
         return np.concatenate(segs) if segs else np.zeros((0, 2, 2))
 
     def heights(self, xy: np.ndarray) -> np.ndarray:
-        """Road surface z under each point: the first merged triangle a vertical ray hits, then
+        """Road surface z under each point: the first triangle a vertical ray hits, then
         barycentric interpolation; a point no triangle covers (float noise on the outline) takes
-        the nearest triangle vertex's height."""
+        the nearest triangle vertex's height. Points are bucketed in cells; each cell's candidate
+        triangles come from one vectorised STRtree query."""
         xy = np.asarray(xy, dtype=np.float64)
         z = np.full(len(xy), np.nan)
         if not len(xy):
             return z
-        lo, hi = xy.min(axis=0), xy.max(axis=0)
-        near = np.flatnonzero((self.boxes[:, 0] <= hi[0]) & (self.boxes[:, 2] >= lo[0])
-                              & (self.boxes[:, 1] <= hi[1]) & (self.boxes[:, 3] >= lo[1]))
-        if not len(near):
+        if not len(self.tris):
             raise RoadtwinError("lane marking lies off the road (no road surface under it)")
-        tri = np.concatenate([self.tris[i] for i in near])
-        tlo, thi = tri[:, :, :2].min(axis=1), tri[:, :, :2].max(axis=1)
         cells = np.floor(xy / _CELL_M).astype(np.int64)
-        keys, inverse = np.unique(cells, axis=0, return_inverse=True)
+        _, inverse = np.unique(cells, axis=0, return_inverse=True)
         inverse = inverse.ravel()
-        for k, (cx, cy) in enumerate(keys):
-            idx = np.flatnonzero(inverse == k)
-            p = xy[idx]
-            plo, phi = p.min(axis=0) - 1e-9, p.max(axis=0) + 1e-9
-            cand = np.flatnonzero((tlo[:, 0] <= phi[0]) & (thi[:, 0] >= plo[0])
-                                  & (tlo[:, 1] <= phi[1]) & (thi[:, 1] >= plo[1]))
+        order = np.argsort(inverse, kind="stable")
+        bounds = np.searchsorted(inverse[order], np.arange(inverse.max() + 2))
+        n_cells = len(bounds) - 1
+        lo = np.full((n_cells, 2), np.inf)
+        hi = np.full((n_cells, 2), -np.inf)
+        np.minimum.at(lo, inverse, xy)
+        np.maximum.at(hi, inverse, xy)
+        boxes = shapely.box(lo[:, 0] - 1e-9, lo[:, 1] - 1e-9, hi[:, 0] + 1e-9, hi[:, 1] + 1e-9)
+        cell_of, tri_of = self.tree.query(boxes)
+        o = np.lexsort((tri_of, cell_of))
+        cell_of, tri_of = cell_of[o], tri_of[o]
+        split = np.searchsorted(cell_of, np.arange(n_cells + 1))
+        for k in range(n_cells):
+            cand = tri_of[split[k]:split[k + 1]]
             if len(cand):
-                z[idx] = _heights_on(p, tri[cand])
+                idx = order[bounds[k]:bounds[k + 1]]
+                z[idx] = _heights_on(xy[idx], self.tris[cand])
         missing = np.isnan(z)
         if missing.any():
             from scipy.spatial import cKDTree
 
-            pts = tri.reshape(-1, 3)
+            pts = self.tris.reshape(-1, 3)
             _, j = cKDTree(pts[:, :2]).query(xy[missing])
             z[missing] = pts[j, 2]
         return z
@@ -171,7 +200,7 @@ def _heights_on(xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return z
 
 
-def triangulate_paint(geom, spacing_m: float = SPACING_M, surface: RoadSurface | None = None
+def triangulate_paint(geom, spacing_m: float = SPACING_M, surface: RoadPatch | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Triangle CDT of (multi)polygons, boundary points <= spacing apart, interior triangles no
     larger than an equilateral of that side, the ``surface``'s road edges inside as constraints;
@@ -236,14 +265,18 @@ def build_markings(markings: list[LaneMarking], segments: list[RoadSegment], mer
             near = hole_tree.query(paint)
             if len(near):
                 paint = paint.difference(shapely.union_all([holes[i] for i in np.sort(near)]))
-        paint = paint.intersection(surface.outline_near(paint))
-        xy, faces = triangulate_paint(paint, spacing_m, surface)
+        segment_ids = surface.near(paint)
+        if not len(segment_ids):
+            continue
+        paint = paint.intersection(surface.outline(segment_ids))
+        patch = surface.patch(segment_ids, paint)
+        xy, faces = triangulate_paint(paint, spacing_m, patch)
         if not len(faces):
             continue
-        z = surface.heights(xy) + lift_m
+        z = patch.heights(xy) + lift_m
         out.append(MarkingMesh(m.id, m.marking_type, m.color, np.column_stack([xy, z]), faces))
     return out
 
 
-__all__ = ["MarkingMesh", "RoadSurface", "build_markings", "dash_intervals", "line_paint", "triangulate_paint",
+__all__ = ["MarkingMesh", "RoadPatch", "RoadSurface", "build_markings", "dash_intervals", "line_paint", "triangulate_paint",
            "LIFT_M", "CUT_MARGIN_M", "SPACING_M"]
