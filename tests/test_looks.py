@@ -353,3 +353,33 @@ def test_broken_line_closed_form_on_a_flat_road():
     assert mesh.vertices[:, 2] == pytest.approx(0.255)
     edges = np.linalg.norm(mesh.vertices[mesh.faces][:, [1, 2, 0]] - mesh.vertices[mesh.faces], axis=-1)
     assert edges.max() <= math.hypot(0.5, width) + 1e-9     # dense enough to follow the road's elevation
+
+
+def test_glb_export_carries_roughness_and_normal_maps(out, tmp_path):
+    """glTF metallicRoughness texture: G = the USD roughness map, B = metallic; normalTexture = the
+    USD normal map (read back from the glb's embedded images)."""
+    import io
+    import struct
+
+    from PIL import Image
+
+    from roadtwin_core import get_plugin_manager
+
+    glb = get_plugin_manager().get("exporters", "glb").export(out / "town.usda", tmp_path / "town.glb")
+    data = glb.read_bytes()
+    (n,) = struct.unpack("<I", data[12:16])
+    gltf = json.loads(data[20:20 + n])
+    binary = data[20 + n + 8:]
+
+    def image(texture_index):
+        view = gltf["bufferViews"][gltf["images"][gltf["textures"][texture_index]["source"]]["bufferView"]]
+        start = view.get("byteOffset", 0)
+        return np.asarray(Image.open(io.BytesIO(binary[start:start + view["byteLength"]])))
+
+    (mat,) = [m for m in gltf["materials"] if m["name"] == "asphalt_worn"]
+    pbr = mat["pbrMetallicRoughness"]
+    rough = image(pbr["metallicRoughnessTexture"]["index"])
+    assert (rough[..., 1] == 200).all() and (rough[..., 2] == 0).all()
+    assert (image(mat["normalTexture"]["index"])[..., :3] == [128, 128, 255]).all()
+    names = {m["name"] for m in gltf["materials"]}
+    assert {"paint_yellow", "paint_white", "pothole", "crack"} <= names
