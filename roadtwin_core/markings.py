@@ -72,7 +72,8 @@ def line_paint(marking: LaneMarking) -> list[Polygon]:
     for offset, dash, gap in marking.lines():
         if marking.marking_type == "botts_dots":
             pitch = dash + gap if dash + gap > 0 else BOTTS_PITCH_M
-            stations = marking.phase_m + pitch * np.arange(int(np.floor(max(length - marking.phase_m, 0) / pitch)) + 1)
+            count = int(np.floor(max(length - marking.phase_m, 0.0) / pitch + 1e-9)) + 1  # a dot on the end too
+            stations = marking.phase_m + pitch * np.arange(count)
             for s in stations:
                 pieces.append(base.interpolate(float(s)).buffer(half, quad_segs=4))
             continue

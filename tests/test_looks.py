@@ -17,7 +17,6 @@ import pytest
 import shapely
 import triangle
 from pxr import Kind, Usd, UsdGeom, UsdSemantics, UsdShade
-from shapely.geometry import Polygon
 
 import roadtwin_core.compose as compose_module
 from roadtwin_core import ComposeRules, FixedDefect, LaneMarking, MergedSegment, RoadSegment, TownLayout

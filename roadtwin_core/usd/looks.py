@@ -19,7 +19,6 @@ layer would be stronger than any variant (LIVRPS) and the switch would do nothin
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 from pxr import Sdf, Usd, UsdGeom, UsdShade
 

@@ -63,6 +63,34 @@ def marking_prim_names(markings: list[MarkingMesh]) -> list[str]:
     return names
 
 
+def road_variants(segments: list[RoadSegment]) -> dict[str, list[tuple[str, str]]]:
+    """``roadMaterial`` variant -> bindings of the driving and junction surfaces. The default
+    variant keeps the catalog's per-kind look (worn lanes, newer junctions); the others pave
+    both with the variant's material."""
+    out = {}
+    for variant, material in ROAD_MATERIAL_VARIANTS.items():
+        out[variant] = [(seg.prim_path, kind_material(seg.kind) if variant == DEFAULT_ROAD_MATERIAL else material)
+                        for seg in segments if seg.kind in VARIANT_KINDS]
+    return out
+
+
+def _write_markings(path: Path, name: str, doc: str, markings: list[MarkingMesh], prim_names: list[str]) -> None:
+    """``/<root>/Markings/<id>`` meshes (kind component under a group), type and colour as attributes."""
+    root = f"/{name}"
+    stage = new_stage(path, name, doc + ": lane markings draped on the road")
+    _over(stage, root)
+    if markings:
+        set_kind(UsdGeom.Xform.Define(stage, f"{root}/Markings").GetPrim(), "group")
+    for prim_name, m in zip(prim_names, markings):
+        mesh = UsdGeom.Mesh.Define(stage, f"{root}/Markings/{prim_name}")
+        write_mesh(mesh, m.vertices, m.faces)
+        write_st(mesh, planar_st(m.vertices))
+        prim = mesh.GetPrim()
+        set_kind(prim, "component")
+        set_attrs(prim, "roadtwin:marking", {"type": m.marking_type, "color": m.color, "id": m.id})
+    stage.GetRootLayer().Save()
+
+
 def _over(stage: Usd.Stage, path: str) -> Usd.Prim:
     return stage.OverridePrim(Sdf.Path(path))
 
@@ -108,18 +136,7 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
     defects.GetRootLayer().Save()
 
     marking_names = marking_prim_names(parts.markings)
-    marks = new_stage(outdir / "layers/markings.usda", lay.name, doc + ": lane markings draped on the road")
-    _over(marks, root)
-    if parts.markings:
-        set_kind(UsdGeom.Xform.Define(marks, f"{root}/Markings").GetPrim(), "group")
-    for name, m in zip(marking_names, parts.markings):
-        mesh = UsdGeom.Mesh.Define(marks, f"{root}/Markings/{name}")
-        write_mesh(mesh, m.vertices, m.faces)
-        write_st(mesh, planar_st(m.vertices))
-        prim = mesh.GetPrim()
-        set_kind(prim, "component")
-        set_attrs(prim, "roadtwin:marking", {"type": m.marking_type, "color": m.color, "id": m.id})
-    marks.GetRootLayer().Save()
+    _write_markings(outdir / "layers/markings.usda", lay.name, doc, parts.markings, marking_names)
 
     physics = new_stage(outdir / "layers/physics.usda", lay.name, doc + ": static road collision")
     _over(physics, root)
@@ -154,12 +171,7 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
         material = defect_material(p.model.defect_type)
         bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
     bindings += [(f"{root}/Markings/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
-    variants = {}
-    for variant, material in ROAD_MATERIAL_VARIANTS.items():
-        # The default variant keeps the per-kind catalog look (worn lanes, newer junctions).
-        pick = (lambda kind: kind_material(kind)) if variant == DEFAULT_ROAD_MATERIAL else (lambda kind, m=material: m)
-        variants[variant] = [(seg.prim_path, pick(seg.kind)) for seg in lay.segments if seg.kind in VARIANT_KINDS]
-    write_looks(looks, root, parts.materials, bindings, variants, DEFAULT_ROAD_MATERIAL)
+    write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
     looks.GetRootLayer().Save()
 
     town_path = outdir / "town.usda"
