@@ -140,6 +140,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
                 "merger": rules.merger, "defectCount": len(placements)}
         materials = write_textures(tmp / "textures", rules.seed)
+        t_textures = time.perf_counter()
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
                                          library_files, info, markings, materials))
         report("write", 1, 1)
@@ -150,7 +151,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         t_write = time.perf_counter()
         summary = _summary(layout, placements, merged, rules, findings,
                            {"place_s": t_place - t0, "merge_s": t_merge - t_place, "markings_s": t_markings - t_merge,
-                            "write_s": t_write - t_markings})
+                            "textures_s": t_textures - t_markings, "write_s": t_write - t_textures})
         summary["markings"] = len(markings)
         summary["materials"] = len(materials)
         if preview:

@@ -29,7 +29,7 @@ from shapely.geometry import LineString, Polygon
 from shapely.ops import substring
 
 from .errors import RoadtwinError
-from .geometry import polygon_loops, vertical_ray_hits
+from .geometry import vertical_ray_hits
 from .model import LaneMarking, MergedSegment, Placement, RoadSegment
 
 LIFT_M = 0.005           # paint floats this far above the road (no z-fighting, no visible gap)
@@ -38,6 +38,7 @@ SPACING_M = 0.5          # most distance between neighbouring marking vertices (
 BOTTS_PITCH_M = 1.2      # dot pitch when a botts-dots marking gives no dash/gap (4 ft, Caltrans)
 _CELL_M = 2.0            # spatial bucket of the height lookup
 _MIN_AREA_M2 = 1e-6      # slivers left by the cut below this are dropped
+_GRID_M = 1e-6           # snap-rounding grid of the paint/road-edge overlay
 
 
 @dataclass
@@ -201,6 +202,26 @@ def _heights_on(xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
     return z
 
 
+def _pslg(poly: Polygon, spacing_m: float, inner: np.ndarray) -> dict:
+    """Triangle input for one paint polygon: its outline (points <= spacing apart) and the road
+    edges inside, noded together by GEOS snap-rounding on a ``_GRID_M`` grid, so no two input
+    segments cross and no two points nearly coincide (Triangle fails on both)."""
+    lines = [shapely.segmentize(poly, spacing_m).boundary]
+    if len(inner):
+        lines.append(shapely.multilinestrings(shapely.linestrings(inner)))
+    noded = shapely.union_all(lines, grid_size=_GRID_M)
+    coords, part = shapely.get_coordinates(shapely.get_parts(noded), return_index=True)
+    pts, inv = np.unique(coords, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    same = part[:-1] == part[1:]
+    segs = np.unique(np.sort(np.column_stack([inv[:-1][same], inv[1:][same]]), axis=1), axis=0)
+    data = {"vertices": pts, "segments": segs[segs[:, 0] != segs[:, 1]]}
+    holes = [Polygon(r).representative_point().coords[0] for r in poly.interiors]
+    if holes:
+        data["holes"] = np.asarray(holes)
+    return data
+
+
 def triangulate_paint(geom, spacing_m: float = SPACING_M, surface: RoadPatch | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Triangle CDT of (multi)polygons, boundary points <= spacing apart, interior triangles no
@@ -208,29 +229,17 @@ def triangulate_paint(geom, spacing_m: float = SPACING_M, surface: RoadPatch | N
     (N,2) vertices and (M,3) counter-clockwise faces."""
     verts, faces, n = [], [], 0
     polys = [geom] if isinstance(geom, Polygon) else list(getattr(geom, "geoms", []))
+    flags = f"pa{spacing_m ** 2 * np.sqrt(3) / 4:.6f}"
     for poly in polys:
         if not isinstance(poly, Polygon) or poly.area < _MIN_AREA_M2:
             continue
-        dense = shapely.segmentize(poly, spacing_m)
-        loops = polygon_loops(dense)
-        pts = [*loops]
-        segs = [np.column_stack([np.arange(len(lp)), (np.arange(len(lp)) + 1) % len(lp)]) for lp in loops]
-        if surface is not None:
-            inner = surface.edges_in(poly)
-            pts.append(inner.reshape(-1, 2))
-            segs.append(np.arange(2 * len(inner)).reshape(-1, 2))
-        offsets = np.cumsum([0] + [len(p) for p in pts[:-1]])
-        segs = np.concatenate([sg + off for sg, off in zip(segs, offsets)])
-        # Snap to 0.1 um and merge duplicates: rings of a valid polygon may touch at a point and
-        # road edges end on the paint outline; Triangle refuses duplicate vertices.
-        pts, inv = np.unique(np.round(np.concatenate(pts), 7), axis=0, return_inverse=True)
-        segs = np.unique(np.sort(inv.ravel()[segs], axis=1), axis=0)
-        segs = segs[segs[:, 0] != segs[:, 1]]
-        data = {"vertices": pts, "segments": segs}
-        holes = [Polygon(r).representative_point().coords[0] for r in poly.interiors]
-        if holes:
-            data["holes"] = np.asarray(holes)
-        out = triangle.triangulate(data, f"pa{spacing_m ** 2 * np.sqrt(3) / 4:.6f}")
+        inner = surface.edges_in(poly) if surface is not None else np.zeros((0, 2, 2))
+        try:
+            out = triangle.triangulate(_pslg(poly, spacing_m, inner), flags)
+        except RuntimeError:
+            # Last resort for a degenerate overlay: the outline alone (the paint then follows
+            # the road at its vertices only, see the module docstring).
+            out = triangle.triangulate(_pslg(poly, spacing_m, np.zeros((0, 2, 2))), flags)
         if "triangles" not in out or not len(out["triangles"]):
             continue
         verts.append(out["vertices"])

@@ -203,7 +203,7 @@ class ComposeRules:
 
     defect_count: int = 40
     type_weights: dict[str, float] = field(default_factory=lambda: {
-        "pothole": 4.0, "depression": 1.0, "bump": 0.5, "rut": 1.0, "manhole": 0.5, "crack": 2.0})
+        "pothole": 4.0, "depression": 1.0, "bump": 0.5, "rut": 1.0, "manhole": 0.5, "crack": 2.0, "patch": 1.0})
     seed: int = 0
     surface: str = "flat"
     merger: str = "cdt"

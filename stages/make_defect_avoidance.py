@@ -17,6 +17,11 @@ the decisions the paper discusses all occur:
   every planner has to bypass it through the left lane.
 * ``right_wheel``: a pothole under the right wheel path: a small shift (or a straddle) for wheels.
 
+Markings: a broken yellow centre line on y = 0 (passing allowed: the wide depression has to be
+bypassed through the left lane; 0.125 m, 3 m dashes, 9 m gaps like the sample town) and solid
+white edge lines (0.12 m) on the lane/sidewalk borders y = -3.5 and y = 3.5. The
+``centre_line_a/b`` potholes sit on the centre line's paint.
+
 Rules: no random defects (``defect_count = 0``), flat surface. The layout carries the default
 route as metadata ``roadtwin:layout:planStart`` / ``planGoal`` ("x,y,yaw", radians), which
 ``roadtwin plan`` uses when --start/--goal are omitted.
@@ -29,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import triangle
 
-from roadtwin_core import ComposeRules, FixedDefect, RoadSegment, TownLayout
+from roadtwin_core import ComposeRules, FixedDefect, LaneMarking, RoadSegment, TownLayout
 from roadtwin_core.usd import write_layout
 
 LENGTH, LANE, WALK, SPLIT = 110.0, 3.5, 2.0, 22.0
@@ -51,6 +56,18 @@ def _strip(x0: float, x1: float, y0: float, y1: float, step: float = 2.5) -> np.
     bottom = np.column_stack([xs, np.full_like(xs, y0)])
     top = np.column_stack([xs[::-1], np.full_like(xs, y1)])
     return np.concatenate([bottom, top])
+
+
+def markings(step: float = 2.5) -> list[LaneMarking]:
+    """Sampled every ``step`` like the segment borders, so a draped line can follow the road."""
+    xs = np.linspace(0.0, LENGTH, int(round(LENGTH / step)) + 1)
+
+    def along(y: float) -> np.ndarray:
+        return np.column_stack([xs, np.full_like(xs, y)])
+
+    return [LaneMarking("centre", "broken", "yellow", 0.125, along(0.0), 3.0, 9.0),
+            LaneMarking("edge_right", "solid", "white", 0.12, along(-LANE)),        # travel +x
+            LaneMarking("edge_left", "solid", "white", 0.12, along(LANE)[::-1])]    # travel -x
 
 
 def pothole(radius: float, depth: float = 0.06) -> dict:
@@ -90,7 +107,7 @@ def build() -> TownLayout:
     rules = ComposeRules(defect_count=0, seed=0, surface="flat", merger="cdt", kinds=("driving",))
     meta = {"planStart": ",".join(f"{v:g}" for v in START), "planGoal": ",".join(f"{v:g}" for v in GOAL),
             "scenario": "defect avoidance (Zhang et al.): straddle, slalom, wide and wheel-path defects"}
-    return TownLayout("Town", segs, rules, fixed=defects(), metadata=meta)
+    return TownLayout("Town", segs, rules, fixed=defects(), metadata=meta, markings=markings())
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from shapely.geometry import LinearRing, Polygon
 
 from roadtwin_core import DefectModel, PluginManager, RoadtwinError
 
-TYPES = ("pothole", "depression", "bump", "rut", "manhole", "crack")
+TYPES = ("pothole", "depression", "bump", "rut", "manhole", "crack", "patch")
 EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "example_plugin" / "roadtwin_speed_cushion.py"
 
 
@@ -126,10 +126,10 @@ def test_nan_and_out_of_range_params_name_the_parameter(types, name):
                 t.generate(params, np.random.default_rng(0), "bad")
 
 
-@pytest.mark.parametrize("name", ["pothole", "depression", "bump", "rut", "manhole", "crack"])
+@pytest.mark.parametrize("name", ["pothole", "depression", "bump", "rut", "manhole", "crack", "patch"])
 def test_negative_size_raises(types, name):
     size = {"pothole": "radius_m", "depression": "width_m", "bump": "length_m", "rut": "length_m",
-            "manhole": "diameter_m", "crack": "width_m"}[name]
+            "manhole": "diameter_m", "crack": "width_m", "patch": "length_m"}[name]
     with pytest.raises(RoadtwinError, match=size):
         make(types, name, **{size: -0.5})
 
@@ -269,6 +269,61 @@ def test_crack_network_is_one_hole_free_v_groove(types, seed):
     assert m.volume_m3 / (m.area_m2 * 0.012) == pytest.approx(0.5, abs=0.08)
     # Narrow groove: area ~ width x length, so area / extent^2 stays small.
     assert m.area_m2 < 0.2 * np.ptp(m.footprint, axis=0).max() ** 2
+
+
+def _inset_area_integral(a: float, b: float, c: float, t: float) -> float:
+    """integral_0^t A(s) ds for a 2a x 2b rectangle with corner radius c inset by s:
+    A(s) = 4 (a - s)(b - s) - (4 - pi) max(c - s, 0)^2 (an inset rounded corner keeps its centre)."""
+    m = min(c, t)
+    return 4 * (a * b * t - (a + b) * t * t / 2 + t ** 3 / 3) - (4 - math.pi) * (c * c * m - c * m * m + m ** 3 / 3)
+
+
+@pytest.mark.parametrize("corner", [0.0, 0.02, 0.12])
+def test_raised_patch_area_volume_and_flat_top(types, corner):
+    L, W, H, t = 2.0, 1.2, 0.008, 0.04
+    m = make(types, "patch", length_m=L, width_m=W, height_m=H, bevel_m=t, corner_m=corner)
+    a, b = L / 2, W / 2
+    exact = L * W - (4 - math.pi) * corner ** 2
+    assert m.area_m2 == pytest.approx(exact, rel=2e-4) and m.area_m2 <= exact + 1e-12  # inscribed arcs
+    assert np.ptp(m.footprint, axis=0) == pytest.approx([L, W], abs=1e-12)
+    # Layer-cake volume: z = H min(d / t, 1) with d the distance to the edge.
+    assert m.volume_m3 == pytest.approx(H / t * _inset_area_integral(a, b, corner, t), rel=2e-3)
+    assert m.height_m == pytest.approx(H, abs=1e-12) and m.depth_m == 0
+    v = m.vertices
+    ax, ay, e = np.abs(v[:, 0]), np.abs(v[:, 1]), max(t, corner) + 1e-9  # a cross inside the inset
+    inner = ((ax <= a - t - 1e-9) & (ay <= b - e)) | ((ax <= a - e) & (ay <= b - t - 1e-9))
+    assert inner.sum() >= 4 and np.allclose(v[inner, 2], H)  # flat top
+    assert (v[:, 2] >= 0).all() and (v[:, 2] <= H + 1e-12).all()
+    # Along the straight sides (away from the corners) the bevel is a plane climbing H over bevel_m.
+    f = m.faces
+    nrm = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    grad = np.hypot(nrm[:, 0], nrm[:, 1]) / np.abs(nrm[:, 2])
+    cen = v[f].mean(axis=1)
+    side = (np.abs(cen[:, 0]) < a - 3 * t - corner) & (np.abs(cen[:, 1]) > b - t)
+    assert side.sum() >= 10 and np.allclose(grad[side], H / t, rtol=1e-6)
+
+
+def test_flush_patch_is_flat_and_outline_is_dense(types):
+    m = make(types, "patch", length_m=2.5, width_m=0.6, height_m=0.0, corner_m=0.0)
+    assert_valid_defect(m)
+    assert (m.vertices[:, 2] == 0).all() and m.volume_m3 == 0
+    assert m.area_m2 == pytest.approx(2.5 * 0.6, rel=1e-12)  # sharp rectangle, exactly
+    loop = m.footprint
+    edge = np.linalg.norm(np.roll(loop, -1, axis=0) - loop, axis=1)
+    assert edge.max() <= 0.04 + 1e-12  # the merger needs an outline densified at a few cm
+
+
+def test_sampled_patches_are_realistic(types):
+    for seed in range(20):
+        p = types["patch"].sample_params(np.random.default_rng(seed))
+        assert 0.4 <= p.length_m <= 3.0 and 0.4 <= p.width_m <= 3.0
+        assert 0.0 <= p.height_m <= 0.010
+
+
+@pytest.mark.parametrize("override, param", [({"corner_m": 0.6}, "corner_m"), ({"bevel_m": 0.4}, "bevel_m")])
+def test_patch_inconsistent_sizes_name_the_parameter(types, override, param):
+    with pytest.raises(RoadtwinError, match=param):
+        make(types, "patch", length_m=1.0, width_m=0.8, **override)
 
 
 def test_generation_is_fast(types):

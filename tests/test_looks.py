@@ -125,7 +125,7 @@ def st_of(prim: Usd.Prim) -> np.ndarray:
 
 
 def marking_prims(stage: Usd.Stage) -> dict[str, Usd.Prim]:
-    return {p.GetName(): p for p in stage.GetPrimAtPath(f"{ROOT}/Markings").GetChildren()}
+    return {p.GetName(): p for p in stage.GetPrimAtPath(f"{ROOT}/MarkingMeshes").GetChildren()}
 
 
 def xy_union(pts: np.ndarray, faces: np.ndarray):
@@ -151,7 +151,7 @@ def _texture_files(shader: UsdShade.Shader, seen=None) -> list[str]:
 
 
 def test_every_rendered_mesh_has_a_textured_preview_surface(stage):
-    groups = {"Roads": 0, "Defects": 0, "Markings": 0}
+    groups = {"Roads": 0, "Defects": 0, "MarkingMeshes": 0}
     for prim in rendered_meshes(stage):
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
         assert material, f"{prim.GetPath()}: no bound material"
@@ -163,7 +163,7 @@ def test_every_rendered_mesh_has_a_textured_preview_surface(stage):
         assert files and all(f and Path(f).is_file() for f in files), (material.GetPath(), files)
         assert len(st_of(prim)) == len(UsdGeom.Mesh(prim).GetPointsAttr().Get()), prim.GetPath()
         groups[str(prim.GetPath()).split("/")[2]] += 1
-    assert groups["Roads"] == 5 and groups["Defects"] >= 3 and groups["Markings"] == 4, groups
+    assert groups["Roads"] == 5 and groups["Defects"] >= 3 and groups["MarkingMeshes"] == 4, groups
 
 
 def test_full_network_with_roughness_and_normal_maps(stage):
@@ -210,8 +210,8 @@ def test_defects_and_markings_bound_by_type_and_colour(stage):
     def bound(path):
         return UsdShade.MaterialBindingAPI(stage.GetPrimAtPath(path)).ComputeBoundMaterial()[0].GetPath().name
 
-    assert bound(f"{ROOT}/Markings/centre") == "paint_yellow"
-    assert bound(f"{ROOT}/Markings/edge_east") == "paint_white"
+    assert bound(f"{ROOT}/MarkingMeshes/centre") == "paint_yellow"
+    assert bound(f"{ROOT}/MarkingMeshes/edge_east") == "paint_white"
     for d in stage.GetPrimAtPath(f"{ROOT}/Defects").GetChildren():
         want = {"pothole": "pothole", "crack": "crack"}[d.GetAttribute("roadtwin:defect:type").Get()]
         for piece in d.GetChildren():
@@ -229,7 +229,7 @@ def test_lane_aligned_st_on_driving_segments(stage):
         assert st[:, 0] == pytest.approx(sign * (pts[:, 0] - x0) / ST_TILE_M, abs=1e-5), name
         assert st[:, 1] == pytest.approx(0.5 + sign * (pts[:, 1] - centre_y) / ST_TILE_M, abs=1e-5), name
     # World-planar elsewhere: sidewalk, defects, markings.
-    for path in [f"{ROOT}/Roads/walk", f"{ROOT}/Markings/centre",
+    for path in [f"{ROOT}/Roads/walk", f"{ROOT}/MarkingMeshes/centre",
                  *(str(c.GetPath()) for d in stage.GetPrimAtPath(f"{ROOT}/Defects").GetChildren() for c in d.GetChildren())]:
         prim = stage.GetPrimAtPath(path)
         assert st_of(prim) == pytest.approx(points_faces(prim)[0][:, :2] / ST_TILE_M, abs=1e-5), path
@@ -237,7 +237,7 @@ def test_lane_aligned_st_on_driving_segments(stage):
 
 # --------------------------------------------------------------------------- markings
 def test_marking_prims_labels_and_attributes(stage, layout):
-    group = stage.GetPrimAtPath(f"{ROOT}/Markings")
+    group = stage.GetPrimAtPath(f"{ROOT}/MarkingMeshes")
     assert Usd.ModelAPI(group).GetKind() == Kind.Tokens.group
     prims = marking_prims(stage)
     assert sorted(prims) == ["centre", "dots", "edge_east", "edge_west"]
@@ -308,7 +308,7 @@ def test_markings_drape_a_few_mm_above_the_road(stage):
 
     surfaces = []
     for p in rendered_meshes(stage):
-        if "/Markings/" not in str(p.GetPath()):
+        if "/MarkingMeshes/" not in str(p.GetPath()):
             pts, faces = points_faces(p)
             surfaces.append(LinearTriInterpolator(Triangulation(pts[:, 0], pts[:, 1], faces), pts[:, 2]))
     road_z = np.concatenate([points_faces(p)[0][:, 2] for p in rendered_meshes(stage) if "/Roads/" in str(p.GetPath())])
@@ -377,8 +377,16 @@ def test_glb_export_carries_roughness_and_normal_maps(out, tmp_path):
 
     (mat,) = [m for m in gltf["materials"] if m["name"] == "asphalt_worn"]
     pbr = mat["pbrMetallicRoughness"]
+    stage = Usd.Stage.Open(str(out / "town.usda"))
+
+    def usd_texture(shader, mode):
+        asset = stage.GetPrimAtPath(f"{ROOT}/Looks/asphalt_worn/{shader}").GetAttribute("inputs:file").Get()
+        return np.asarray(Image.open(asset.resolvedPath).convert(mode))
+
+    metallic = stage.GetPrimAtPath(f"{ROOT}/Looks/asphalt_worn/PreviewSurface").GetAttribute("inputs:metallic").Get()
     rough = image(pbr["metallicRoughnessTexture"]["index"])
-    assert (rough[..., 1] == 200).all() and (rough[..., 2] == 0).all()
-    assert (image(mat["normalTexture"]["index"])[..., :3] == [128, 128, 255]).all()
+    assert np.array_equal(rough[..., 1], usd_texture("Roughness", "L"))
+    assert (rough[..., 2] == round(255 * metallic)).all()
+    assert np.array_equal(image(mat["normalTexture"]["index"])[..., :3], usd_texture("Normal", "RGB"))
     names = {m["name"] for m in gltf["materials"]}
     assert {"paint_yellow", "paint_white", "pothole", "crack"} <= names

@@ -522,6 +522,11 @@ def _road_xml(geometry="<line/>", lanes=None):
             "</OpenDRIVE>")
 
 
+def _marked_lane(mark: str) -> str:
+    return ('<lanes><laneSection s="0"><right><lane id="-1" type="driving"><width sOffset="0" a="3" b="0" c="0" '
+            f'd="0"/>{mark}</lane></right></laneSection></lanes>')
+
+
 BAD = {
     "unknown_geometry": (_road_xml("<clothoid2 k='1'/>"), "road 42: unknown geometry <clothoid2>"),
     "missing_lanes": (_road_xml(lanes=""), "road 42: has no <lanes>"),
@@ -532,6 +537,13 @@ BAD = {
     "nan_number": (_road_xml('<arc curvature="nan"/>'), "road 42: <arc> attribute curvature='nan' is not finite"),
     "bad_xml": ('<?xml version="1.0"?><OpenDRIVE><road id="42"></OpenDRIVE>', "road 42: not well-formed XML"),
     "not_opendrive": ('<?xml version="1.0"?><svg/>', "not an OpenDRIVE file"),
+    "roadmark_width": (_road_xml(lanes=_marked_lane('<roadMark sOffset="0" type="solid" width="0.1m"/>')),
+                       "road 42: laneSection 0: lane -1: <roadMark> attribute width='0.1m' is not a number"),
+    "roadmark_type": (_road_xml(lanes=_marked_lane('<roadMark sOffset="0" type="zigzag" width="0.1"/>')),
+                      "road 42: laneSection 0: lane -1: <roadMark> type='zigzag' is not an OpenDRIVE road mark type"),
+    "roadmark_line": (_road_xml(lanes=_marked_lane('<roadMark sOffset="0" type="broken"><type name="x" width="0.1">'
+                                                   '<line length="3" space="-1" tOffset="0" sOffset="0"/></type>'
+                                                   '</roadMark>')), "road 42: laneSection 0: lane -1: "),
 }
 
 
@@ -579,3 +591,90 @@ def test_cli_import_and_compose_town01(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["validation"]["errors"] == 0
     assert summary["defects"] == 50 and summary["segments"] == 752
+
+
+# ---- road marks --------------------------------------------------------------------------------
+
+MARKED = """<?xml version="1.0"?>
+<OpenDRIVE><header revMajor="1" revMinor="6"/>
+  <road id="5" length="60" junction="-1"><planView>
+    <geometry s="0" x="10" y="20" hdg="0" length="60"><line/></geometry></planView>
+    <lanes><laneOffset s="0" a="0.3" b="0" c="0" d="0"/>
+      <laneSection s="0">
+        <left><lane id="1" type="driving"><width sOffset="0" a="3" b="0" c="0" d="0"/>
+          <roadMark sOffset="0" type="broken" color="white" width="0.15">
+            <type name="custom" width="0.15"><line length="1" space="2" tOffset="0" sOffset="0.5"/></type>
+          </roadMark></lane></left>
+        <center><lane id="0" type="none">
+          <roadMark sOffset="12" type="solid solid" color="yellow" width="0.1">
+            <type name="double"><line length="0" space="0" tOffset="0.25" sOffset="0" width="0.1"/>
+                                <line length="0" space="0" tOffset="0.05" sOffset="0" width="0.1"/></type>
+          </roadMark>
+          <roadMark sOffset="0" type="broken" color="standard"/>
+          <roadMark sOffset="20" type="none"/>
+          <roadMark sOffset="25" type="broken" color="yellow" width="0.12"/>
+          <roadMark sOffset="28" type="broken" color="yellow" width="0.12"/>
+        </lane></center>
+        <right><lane id="-1" type="driving"><width sOffset="0" a="3" b="0" c="0" d="0"/>
+          <roadMark sOffset="0" type="custom" color="white" width="0.12">
+            <type name="c"><line length="2" space="4" tOffset="-0.1" sOffset="1"/></type></roadMark>
+          <roadMark sOffset="10" type="botts dots" color="white"/>
+          <roadMark sOffset="30" type="curb" width="0.15"/>
+          <roadMark sOffset="50" type="grass"/></lane></right>
+      </laneSection>
+      <laneSection s="40">
+        <center><lane id="0" type="none"><roadMark sOffset="0" type="broken" color="yellow" width="0.12"/></lane></center>
+        <right><lane id="-1" type="driving"><width sOffset="0" a="3" b="0" c="0" d="0"/>
+          <roadMark sOffset="0" type="solid broken" color="white" width="0.1"/></lane></right>
+      </laneSection></lanes></road>
+</OpenDRIVE>"""
+
+
+@pytest.fixture(scope="module")
+def marked(tmp_path_factory):
+    path = tmp_path_factory.mktemp("odr") / "marked.xodr"
+    path.write_text(MARKED)
+    return {m.id: m for m in load_network(path).layout.markings}
+
+
+def _span_of(m):
+    """(x start, x end, y) of a marking on this straight road along +x from (10, 20)."""
+    assert np.allclose(m.points[:, 1], m.points[0, 1])
+    return m.points[0, 0] - 10, m.points[-1, 0] - 10, m.points[0, 1] - 20
+
+
+def test_road_marks_spans_types_and_defaults(marked):
+    """sOffsets listed out of order, 'none' and 'grass' skipped, a mark running to the section end,
+    consecutive identical marks joined across a lane section, standard colour/width/dashes."""
+    assert set(marked) == {"r5_ls0_c0_0", "r5_ls0_c0_1", "r5_ls0_c0_3", "r5_ls0_lp1_0", "r5_ls0_lm1_0",
+                           "r5_ls0_lm1_1", "r5_ls0_lm1_2", "r5_ls1_lm1_0"}
+    c0, c1, c3 = marked["r5_ls0_c0_0"], marked["r5_ls0_c0_1"], marked["r5_ls0_c0_3"]
+    # centre lane: reference line + laneOffset 0.3, along +s
+    assert _span_of(c0) == pytest.approx((0, 12, 0.3))
+    assert (c0.marking_type, c0.color, c0.width_m, c0.dash_m, c0.gap_m) == ("broken", "white", 0.12, 3.0, 9.0)
+    # solid solid: lines at t = 0.3 + 0.25 and 0.3 + 0.05 -> 0.2 apart around t = 0.45
+    assert _span_of(c1) == pytest.approx((12, 20, 0.45))
+    assert (c1.marking_type, c1.color, c1.width_m, c1.spacing_m) == ("solid_solid", "yellow", 0.1, pytest.approx(0.2))
+    # s 25..28 and 28..40 and the next section's 0..20: one curve
+    assert _span_of(c3) == pytest.approx((25, 60, 0.3))
+    assert (c3.marking_type, c3.dash_m, c3.gap_m) == ("broken", 3.0, 9.0)
+    bd, curb = marked["r5_ls0_lm1_1"], marked["r5_ls0_lm1_2"]
+    assert _span_of(bd) == pytest.approx((10, 30, 0.3 - 3))
+    assert (bd.marking_type, bd.width_m, bd.dash_m, bd.dash_m + bd.gap_m) == ("botts_dots", 0.1, 0.1, pytest.approx(1.2))
+    assert _span_of(curb) == pytest.approx((30, 40, 0.3 - 3))  # grass at 50 paints nothing; section ends at 40
+    assert (curb.marking_type, curb.color, curb.width_m) == ("curb", "white", 0.15)
+    sb = marked["r5_ls1_lm1_0"]
+    assert (sb.marking_type, sb.dash_m, sb.gap_m, sb.spacing_m) == ("solid_broken", 3.0, 9.0, pytest.approx(0.22))
+
+
+def test_road_mark_line_definitions_and_travel_direction(marked):
+    """<type><line>: dash/gap/phase from length/space/sOffset, tOffset moves the line; left lanes
+    run against s, with the dash pattern mirrored."""
+    custom = marked["r5_ls0_lm1_0"]
+    assert _span_of(custom) == pytest.approx((0, 10, 0.3 - 3 - 0.1))
+    assert (custom.marking_type, custom.dash_m, custom.gap_m, custom.phase_m) == ("broken", 2.0, 4.0, 1.0)
+    left = marked["r5_ls0_lp1_0"]
+    assert _span_of(left) == pytest.approx((40, 0, 3.3))  # lane 1 travels towards -s
+    # dashes in s: [0.5 + 3k, 1.5 + 3k]; along the curve (u = 40 - s): [38.5 - 3k, 39.5 - 3k], which
+    # start at u = 2.5 modulo the 3 m period
+    assert (left.dash_m, left.gap_m, left.phase_m) == (1.0, 2.0, pytest.approx(2.5))

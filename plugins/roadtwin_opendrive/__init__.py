@@ -3,8 +3,8 @@
 A small parser of its own (xml.etree) with closed-form reference-line evaluation; see
 :mod:`roadtwin_opendrive.importer` for what a map becomes and why. Public:
 :class:`OpenDriveImporter` (the registered layout importer), :class:`OpenDriveParams`,
-:func:`load_network` (layout plus road/junction counts and the junctions' connecting-lane centre
-lines), :func:`read_xodr` and :class:`ReferenceLine` (for tests and tools).
+:func:`load_network` (layout, with the road marks as lane markings, plus road/junction counts and
+the junctions' connecting-lane centre lines), :func:`read_xodr` and :class:`ReferenceLine` (for tests and tools).
 """
 from roadtwin_core import hookimpl
 

@@ -2,8 +2,9 @@
 
 Only what the importer needs is read: header, roads (planView, elevationProfile,
 lateralProfile/superelevation, lanes/laneOffset, laneSection left/center/right lanes with their
-width records) and junction ids. Every problem becomes one :class:`RoadtwinError` line naming the
-file and, where there is one, the road id; nothing is skipped silently.
+width and roadMark records, a roadMark's optional ``<type>`` line definitions) and junction ids.
+Every problem becomes one :class:`RoadtwinError` line naming the file and, where there is one,
+the road id; nothing is skipped silently.
 """
 from __future__ import annotations
 
@@ -42,11 +43,42 @@ class Geometry:
     params: dict[str, float | str] = field(default_factory=dict)
 
 
+# roadMark types of OpenDRIVE 1.4-1.8. "grass", "edge" (a road edge, 1.6+) and "none" paint nothing;
+# "custom" takes its shape from its <type> line definitions.
+ROADMARK_TYPES = ("none", "solid", "broken", "solid solid", "solid broken", "broken solid", "broken broken",
+                  "botts dots", "grass", "curb", "custom", "edge")
+
+
+@dataclass
+class MarkLine:
+    """One ``<type><line>`` of a road mark; ``width`` 0 when the file leaves it out."""
+
+    length: float
+    space: float
+    t_offset: float
+    s_offset: float
+    width: float = 0.0
+    rule: str = ""
+
+
+@dataclass
+class RoadMark:
+    """A ``<roadMark>``: valid from ``s_offset`` (relative to its lane section) to the next one."""
+
+    s_offset: float
+    type: str            # as in ROADMARK_TYPES (spaces kept)
+    color: str           # lower case; "standard" when the file says so or nothing
+    width: float         # 0 when missing
+    weight: str = "standard"
+    lines: list[MarkLine] = field(default_factory=list)
+
+
 @dataclass
 class Lane:
     id: int
     type: str
     widths: list[Cubic]  # s is the sOffset from the lane section start
+    marks: list[RoadMark] = field(default_factory=list)  # sorted by s_offset
 
 
 @dataclass
@@ -54,6 +86,7 @@ class LaneSection:
     s: float
     left: list[Lane]   # ids 1, 2, 3 ... (inner to outer)
     right: list[Lane]  # ids -1, -2, -3 ... (inner to outer)
+    center_marks: list[RoadMark] = field(default_factory=list)  # road marks of the center lane 0
 
 
 @dataclass
@@ -241,7 +274,9 @@ def _read_road(rd: _Reader, el: ET.Element, rid: str) -> Road:
         ls_where = f"{where}: laneSection {k}"
         left = _read_lanes(rd, _child(ls, "left"), ls_where, +1)
         right = _read_lanes(rd, _child(ls, "right"), ls_where, -1)
-        sections.append(LaneSection(rd.num(ls, "s", ls_where), left, right))
+        center = _children(_child(ls, "center"), "lane")
+        marks = _read_marks(rd, center[0], f"{ls_where}: lane 0") if center else []
+        sections.append(LaneSection(rd.num(ls, "s", ls_where), left, right, marks))
     if not sections:
         raise rd.fail(where, "has no <laneSection>")
     sections.sort(key=lambda x: x.s)
@@ -271,9 +306,37 @@ def _read_lanes(rd: _Reader, side: ET.Element | None, where: str, sign: int) -> 
             if _children(ln, "border"):
                 raise rd.fail(lw, "uses <border> records, which are not supported (only <width>)")
             raise rd.fail(lw, "has no <width> records")
-        lanes.append(Lane(lid, ln.get("type", "none"), widths))
+        lanes.append(Lane(lid, ln.get("type", "none"), widths, _read_marks(rd, ln, lw)))
     lanes.sort(key=lambda x: abs(x.id))
     ids = [abs(x.id) for x in lanes]
     if ids != list(range(1, len(ids) + 1)):
         raise rd.fail(where, f"lane ids {sorted(x.id for x in lanes)} are not consecutive from the center lane")
     return lanes
+
+
+def _read_marks(rd: _Reader, lane: ET.Element, where: str) -> list[RoadMark]:
+    """A lane's road marks, sorted by sOffset (a stable sort: files list them in any order)."""
+    marks = []
+    for el in _children(lane, "roadMark"):
+        raw = " ".join((el.get("type") or "").split())
+        if raw not in ROADMARK_TYPES:
+            raise rd.fail(where, f"<roadMark> type={el.get('type')!r} is not an OpenDRIVE road mark type "
+                                 f"(known: {', '.join(ROADMARK_TYPES)})")
+        s_offset = rd.num(el, "sOffset", where, 0.0)
+        width = rd.num(el, "width", where, 0.0)
+        if s_offset < 0 or width < 0:
+            raise rd.fail(where, f"<roadMark> sOffset and width must be >= 0, got sOffset={s_offset:g} "
+                                 f"width={width:g}")
+        lines = []
+        type_el = _child(el, "type")
+        for ln in _children(type_el, "line"):
+            line = MarkLine(rd.num(ln, "length", where, 0.0), rd.num(ln, "space", where, 0.0),
+                            rd.num(ln, "tOffset", where, 0.0), rd.num(ln, "sOffset", where, 0.0),
+                            rd.num(ln, "width", where, 0.0), ln.get("rule", ""))
+            if min(line.length, line.space, line.s_offset, line.width) < 0:
+                raise rd.fail(where, "<roadMark><type><line> length, space, sOffset and width must be >= 0")
+            lines.append(line)
+        marks.append(RoadMark(s_offset, raw, (el.get("color") or "standard").strip().lower() or "standard",
+                              width, (el.get("weight") or "standard").strip(), lines))
+    marks.sort(key=lambda m: m.s_offset)
+    return marks

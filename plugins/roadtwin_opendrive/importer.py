@@ -33,9 +33,23 @@ What a layout gets from a map:
   (1000 by default, like the paper's Town01) capped at one per 20 m^2 of driving + junction
   area so a small map stays composable.
 
+- Road marks: every lane's ``<roadMark>`` records (junction roads included) become
+  :class:`LaneMarking` curves in ``layout.markings``. A mark holds from its sOffset to the next
+  mark's sOffset (or the lane section end); it lies on the lane's outer border (lane 0: the
+  reference line + laneOffset), moved sideways by its ``<line tOffset>`` if it has one, sampled
+  at ``sample_step_m`` on the very border points the segments use, in the lane's travel
+  direction. Types "none", "grass" and "edge" paint nothing and are skipped; "curb" is kept as
+  data. Standard dash/gap/width where the file gives no ``<type>`` lines: see
+  :mod:`roadtwin_opendrive._marks`. Consecutive marks of one lane with the same style (also across
+  lane sections, where the lane keeps its id and the curves join) become one curve. The marks
+  are the file's: two connecting roads of a junction that share a reference line (CARLA does
+  this) both carry their centre line, so such a line is there twice, on the same points.
+  Id ``r<road>_ls<k>_<c0|lane tag>_<j>`` (k, j: lane section and mark where the curve starts).
+
 Supported: geometry line / arc / spiral / poly3 / paramPoly3, elevationProfile, superelevation,
-laneOffset, lane sections with width records. Not supported (refused with a clear message):
-lane <border> records. Ignored: road marks, objects, signals, lane heights, crossfall, shapes.
+laneOffset, lane sections with width records, road marks (not their ``<sway>`` or
+``<explicit>`` geometry). Not supported (refused with a clear message): lane <border> records.
+Ignored: objects, signals, lane heights, crossfall, shapes.
 """
 from __future__ import annotations
 
@@ -49,8 +63,10 @@ import shapely
 import triangle
 from shapely.geometry import MultiPolygon, Polygon
 
-from roadtwin_core import (ComposeRules, RoadSegment, RoadtwinError, TownLayout, check_params, field,
+from roadtwin_core import (ComposeRules, LaneMarking, RoadSegment, RoadtwinError, TownLayout, check_params, field,
                            make_params, triangle_areas)
+
+from ._marks import MarkStyle, mark_style
 
 from ._refline import ReferenceLine, eval_cubics
 from ._xodr import OpenDriveFile, Road, read_xodr
@@ -96,7 +112,39 @@ def _inner_id(lane_id: int) -> int:
 
 
 def _lane_tag(lane_id: int) -> str:
-    return f"l{'m' if lane_id < 0 else 'p'}{abs(lane_id)}"
+    return f"l{'m' if lane_id < 0 else 'p'}{abs(lane_id)}" if lane_id else "c0"
+
+
+def _span(s: np.ndarray, xy: np.ndarray, a: float, b: float) -> np.ndarray:
+    """The stretch s in [a, b] of a border sampled at s: interpolated ends plus the samples between."""
+    inside = (s > a + 1e-6) & (s < b - 1e-6)
+    ends = np.array([[np.interp(v, s, xy[:, 0]), np.interp(v, s, xy[:, 1])] for v in (a, b)])
+    return np.concatenate([ends[:1], xy[inside], ends[1:]])
+
+
+@dataclass
+class _MarkPiece:
+    """A stretch of one road mark, points along +s (reversed for left lanes at the end)."""
+
+    id: str
+    road: str
+    lane: int
+    style: MarkStyle
+    points: np.ndarray
+    s_length: float
+
+    def marking(self) -> LaneMarking:
+        st, pts = self.style, self.points
+        if self.lane > 0:
+            pts = pts[::-1]
+        phase = 0.0
+        if st.dash_m > 0:
+            length = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+            first = st.first_dash_s * length / max(self.s_length, 1e-9)  # s -> along the curve
+            # against s the pattern is mirrored: where the last dash (in s) ends is the first start
+            phase = (length - first - st.dash_m) % (st.dash_m + st.gap_m) if self.lane > 0 else first
+        return LaneMarking(self.id, st.marking_type, st.color, st.width_m, pts, st.dash_m, st.gap_m, phase,
+                           st.spacing_m)
 
 
 def _triangulate(ring: np.ndarray, holes: list[np.ndarray] = ()) -> tuple[np.ndarray, np.ndarray]:
@@ -220,7 +268,7 @@ class _Section:
 
 class OpenDriveImporter:
     name = "opendrive"
-    description = "OpenDRIVE 1.4-1.8 road networks (.xodr): lanes as segments, junctions merged"
+    description = "OpenDRIVE 1.4-1.8 road networks (.xodr): lanes as segments, junctions merged, road marks kept"
     suffixes = (".xodr",)
     Params = OpenDriveParams
 
@@ -256,6 +304,7 @@ class _Builder:
         self.centerlines: dict[str, np.ndarray] = {}
         self.road_tags: dict[str, str] = {}
         self.n_sections = 0
+        self.marks: list[_MarkPiece] = []
 
     def fail(self, road: Road, message: str) -> RoadtwinError:
         return RoadtwinError(f"{self.name}: road {road.id}: {message}")
@@ -331,9 +380,11 @@ class _Builder:
         in_junction = road.junction != "-1"
         if in_junction:
             self.junction_roads.setdefault(road.junction, []).append(road.id)
+        open_marks: dict[int, _MarkPiece] = {}  # lane id -> its last mark piece on this road
         for sec in self.sections(road, ref):
             self.n_sections += 1
             self.add_terrain(sec)
+            self.road_marks(road, sec, tag, open_marks)
             lanes = {ln.id: ln for ln in road.sections[sec.k].left + road.sections[sec.k].right}
             for lid, lane in sorted(lanes.items(), key=lambda kv: (kv[0] < 0, abs(kv[0]))):
                 if not self.wanted(lane.type) and not (in_junction and lane.type in DRIVABLE):
@@ -346,6 +397,34 @@ class _Builder:
                     self.junction_lane(road, sec, lane.type, lid, t_in, t_out, width, base)
                 else:
                     self.lane_segments(road, sec, lane.type, lid, t_in, t_out, width, base)
+
+    def road_marks(self, road: Road, sec: _Section, tag: str, open_marks: dict[int, _MarkPiece]) -> None:
+        """Mark pieces of one lane section; a piece that continues the lane's last one joins it."""
+        rec = road.sections[sec.k]
+        s_end = float(sec.s[-1])
+        for lid, marks in [(0, rec.center_marks), *((ln.id, ln.marks) for ln in rec.left + rec.right)]:
+            for j, mark in enumerate(marks):
+                a = max(rec.s + mark.s_offset, float(sec.s[0]))
+                b = min(rec.s + marks[j + 1].s_offset if j + 1 < len(marks) else s_end, s_end)
+                style = mark_style(mark, lid > 0)
+                if b - a < 1e-6 or style is None:
+                    continue
+                if style.t_shift:
+                    xy = untangle(sec.points(sec.borders[lid] + style.t_shift))
+                else:
+                    xy = sec.border_xy(lid)
+                pts = _span(sec.s, xy, a, b)
+                last = open_marks.get(lid)
+                if (last is not None and last.style == style and style.first_dash_s == 0
+                        and np.abs(last.points[-1] - pts[0]).max() < 1e-6):
+                    last.points = np.concatenate([last.points, pts[1:]])
+                    last.s_length += b - a
+                    continue
+                piece = _MarkPiece(f"r{tag}_ls{sec.k}_{_lane_tag(lid)}_{j}", road.id, lid, style, pts, b - a)
+                self.marks.append(piece)
+                open_marks[lid] = piece
+            if not marks:
+                open_marks.pop(lid, None)
 
     def lane_segments(self, road, sec: _Section, kind, lid, t_in, t_out, width, base) -> None:
         inner, outer = sec.border_xy(_inner_id(lid)), sec.border_xy(lid)
@@ -449,7 +528,14 @@ class _Builder:
         name = _safe(odr.path.stem) or "Town"
         name = name if not name[0].isdigit() else f"_{name}"
         terrain = np.concatenate(self.terrain) if self.terrain else None
-        layout = TownLayout(name, self.segments, rules, str(odr.path), terrain, [], meta)
+        markings = []
+        for piece in self.marks:
+            try:
+                markings.append(piece.marking())
+            except RoadtwinError as exc:
+                raise RoadtwinError(f"{self.name}: road {piece.road}: lane {piece.lane} road mark {piece.id}: "
+                                   f"{str(exc).split(': ', 1)[-1]}") from None
+        layout = TownLayout(name, self.segments, rules, str(odr.path), terrain, [], meta, markings)
         return OpenDriveNetwork(layout, len(odr.roads), len(odr.junctions), self.centerlines, self.n_sections)
 
 

@@ -9,9 +9,10 @@ centreline get lane-aligned st (u along travel, v across, v = 0.5 on the centrel
 tire-polished wheel paths of the asphalt textures lie under the wheels; everything else is
 world-planar (st = xy / ST_TILE_M).
 """
-from .catalog import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, ROAD_MATERIAL_VARIANTS, ST_TILE_M,
-                      MaterialSpec, defect_material, kind_material, marking_material)
+from .catalog import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL_MATERIALS, ROAD_MATERIAL_VARIANTS,
+                      ST_TILE_M, MaterialSpec, all_materials, defect_material, kind_material, marking_material)
 from .textures import write_textures
 
-__all__ = ["DEFECT_MATERIAL", "KIND_MATERIAL", "MARKING_MATERIAL", "ROAD_MATERIAL_VARIANTS", "ST_TILE_M",
-           "MaterialSpec", "defect_material", "kind_material", "marking_material", "write_textures"]
+__all__ = ["DEFECT_MATERIAL", "KIND_MATERIAL", "MARKING_MATERIAL", "OPTIONAL_MATERIALS", "ROAD_MATERIAL_VARIANTS",
+           "ST_TILE_M", "MaterialSpec", "all_materials", "defect_material", "kind_material", "marking_material",
+           "write_textures"]

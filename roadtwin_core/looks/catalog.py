@@ -33,6 +33,14 @@ ROAD_MATERIAL_VARIANTS = {"asphalt": "asphalt_worn", "cobblestone": "cobblestone
 DEFECT_MATERIAL = {"pothole": "pothole", "crack": "crack", "rut": "worn", "depression": "worn",
                    "bump": "asphalt", "manhole": "cast_iron", "patch": "patch"}
 MARKING_MATERIAL = {"white": "paint_white", "yellow": "paint_yellow"}
+# Written and authored like the others but bound by no default rule: a user (or a variant) binds them.
+OPTIONAL_MATERIALS = ("pothole_wet",)
+
+
+def all_materials() -> list[str]:
+    """Every material name the catalog uses (what a looks layer authors)."""
+    return sorted({*KIND_MATERIAL.values(), *ROAD_MATERIAL_VARIANTS.values(), *DEFECT_MATERIAL.values(),
+                   *MARKING_MATERIAL.values(), "asphalt", "worn", "paint_white", *OPTIONAL_MATERIALS})
 
 
 def kind_material(kind: str) -> str:

@@ -1,28 +1,104 @@
-"""Seeded procedural textures (PLACEHOLDER: flat colours until the texture generator lands)."""
+"""Seeded procedural textures for every built-in material, written as PNG.
+
+Why per-map resolutions: a 4 m tile needs ~4 mm texels for asphalt aggregate to read at
+camera distance, but roughness varies slowly and normals carry little above 8 mm, so those are
+stored at 1/2-1/4 of the diffuse size (block means of the same field: still seamless). That
+keeps the default set (``size`` 1024) to ~11.6 MB of PNG and ~2.5 s of CPU. Images are in the usual order
+(row 0 = top = v 1, as UsdUVTexture reads st (0, 0) at the bottom-left); normal maps are
+tangent space (x along u, y along v, z out) encoded as (n + 1) / 2 in 0..255; roughness is
+linear; diffuse is sRGB.
+"""
 from __future__ import annotations
 
+import zlib
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
+from ..errors import RoadtwinError
+from . import _asphalt, _finishes, _masonry
+from ._noise import block_mean, linear_to_srgb8, normal_map, unit_to_u8
+from ._surface import Surface
 from .catalog import MaterialSpec
 
-_FLAT = {"asphalt": (60, 60, 62), "asphalt_worn": (80, 80, 80), "cobblestone": (110, 100, 90),
-         "cement": (170, 168, 160), "pavers": (150, 140, 130), "paint_white": (235, 235, 230),
-         "paint_yellow": (230, 180, 40), "pothole": (40, 36, 32), "crack": (15, 15, 15), "worn": (90, 88, 85),
-         "cast_iron": (50, 48, 46), "patch": (45, 45, 48)}
+DEFAULT_SIZE = 1024
+PNG_COMPRESS_LEVEL = 1  # fixed: same bytes for the same seed
 
 
-def write_textures(folder: str | Path, seed: int = 0, size: int = 256) -> dict[str, MaterialSpec]:
-    """Write every built-in material's textures into ``folder``; return the specs by name."""
-    from PIL import Image
+def _one(fn: Callable) -> Callable:
+    return lambda rng, n: {fn.__name__: fn(rng, n)}
 
+
+def _pothole(rng: np.random.Generator, n: int) -> dict[str, Surface]:
+    dry, wet = _asphalt.pothole_pair(rng, n)
+    return {"pothole": dry, "pothole_wet": wet}
+
+
+# group -> (generator, diffuse / normal / roughness size as a fraction of ``size``, docs).
+# A generator may return several materials (pothole and its wet variant share one geometry
+# and one normal map).
+_GROUPS: dict[str, tuple[Callable, tuple[float, float, float], str]] = {
+    "asphalt": (_one(_asphalt.asphalt), (1, 0.5, 0.25), "new dense asphalt"),
+    "asphalt_worn": (_one(_asphalt.asphalt_worn), (1, 0.5, 0.25), "aged asphalt, tire-polished wheel paths"),
+    "patch": (_one(_asphalt.patch), (0.5, 0.5, 0.25), "fresh asphalt repair"),
+    "worn": (_one(_asphalt.worn), (0.5, 0.5, 0.25), "polished worn asphalt (ruts, depressions)"),
+    "pothole": (_pothole, (0.5, 0.5, 0.25), "pothole interior: coarse exposed aggregate (dry / wet)"),
+    "crack": (_one(_asphalt.crack), (0.25, 0.25, 0.25), "inside a crack: near-black"),
+    "cobblestone": (_one(_masonry.cobblestone), (0.5, 0.5, 0.25), "granite setts"),
+    "pavers": (_one(_masonry.pavers), (0.5, 0.5, 0.25), "sidewalk concrete pavers"),
+    "cement": (_one(_masonry.cement), (0.5, 0.5, 0.25), "concrete slabs with joints"),
+    "paint_white": (_one(_finishes.paint_white), (0.5, 0.25, 0.25), "white road paint, slightly worn"),
+    "paint_yellow": (_one(_finishes.paint_yellow), (0.5, 0.25, 0.25), "yellow road paint, slightly worn"),
+    "cast_iron": (_one(_finishes.cast_iron), (0.5, 0.5, 0.25), "manhole cover: cast iron, diamond studs, rust"),
+}
+# Materials that reuse another's normal map (same geometry, different finish).
+_SHARED_NORMAL = {"pothole_wet": "pothole"}
+
+
+def write_textures(folder: str | Path, seed: int = 0, size: int = DEFAULT_SIZE) -> dict[str, MaterialSpec]:
+    """Write every built-in material's textures into ``folder``; return the specs by name.
+
+    ``size``: texels per tile of the most detailed maps (asphalt diffuse); other maps are
+    1/2 or 1/4 of it. The same ``seed`` and ``size`` give the same PNG bytes.
+    """
+    if not isinstance(size, (int, np.integer)) or isinstance(size, bool) or not 64 <= size <= 8192 or size % 4:
+        raise RoadtwinError(f"looks: parameter size must be a multiple of 4 in 64..8192, got {size!r}")
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    specs = {}
-    for name, rgb in _FLAT.items():
-        img = np.empty((size, size, 3), np.uint8)
-        img[:] = rgb
-        Image.fromarray(img).save(folder / f"{name}_diffuse.png", optimize=False)
-        specs[name] = MaterialSpec(name, f"{name}_diffuse.png")
+    specs: dict[str, MaterialSpec] = {}
+    for group, (generate, fractions, doc) in _GROUPS.items():
+        sizes = [max(16, int(size * f)) for f in fractions]
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, zlib.crc32(group.encode())])
+        n = max(sizes)
+        for name, surface in generate(rng, n).items():
+            specs[name] = _write_material(folder, name, surface, n, sizes, doc)
     return specs
+
+
+def _write_material(folder: Path, name: str, s: Surface, n: int, sizes: list[int], doc: str) -> MaterialSpec:
+    diffuse_n, normal_n, rough_n = sizes
+    diffuse = f"{name}_diffuse.png"
+    _save(folder / diffuse, linear_to_srgb8(block_mean(s.albedo, n // diffuse_n)))
+    roughness, value = None, 0.8
+    if isinstance(s.roughness, np.ndarray):
+        roughness = f"{name}_roughness.png"
+        _save(folder / roughness, unit_to_u8(block_mean(s.roughness, n // rough_n)))
+    else:
+        value = float(s.roughness)
+    normal = None
+    if name in _SHARED_NORMAL:
+        normal = f"{_SHARED_NORMAL[name]}_normal.png"
+    elif s.height is not None:
+        normal = f"{name}_normal.png"
+        nrm = normal_map(block_mean(s.height, n // normal_n), s.normal_strength)
+        _save(folder / normal, unit_to_u8((nrm + 1.0) / 2.0))
+    return MaterialSpec(name=name, diffuse=diffuse, roughness=roughness, roughness_value=value, normal=normal,
+                        metallic=s.metallic, doc=doc)
+
+
+def _save(path: Path, img: np.ndarray) -> None:
+    from PIL import Image
+
+    Image.fromarray(np.ascontiguousarray(np.flipud(img))).save(path, format="PNG",
+                                                               compress_level=PNG_COMPRESS_LEVEL, optimize=False)

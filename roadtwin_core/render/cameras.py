@@ -286,3 +286,41 @@ def load_poses_file(path: str | Path) -> list[np.ndarray]:
             raise RoadtwinError(f"{path}: pose {k}: cam_to_world must be a finite 4x4 matrix")
         poses.append(m)
     return poses
+
+
+# ------------------------------------------------------------------------------ rig presets
+@dataclass(frozen=True)
+class RigPreset:
+    """A named camera rig: image size, horizontal field of view, mounting height above the road
+    and pitch (cameras' convention: negative looks down), and a stereo baseline (None = mono).
+    ``source`` says where the numbers come from."""
+
+    name: str
+    width: int
+    height: int
+    hfov_deg: float
+    height_m: float
+    pitch_deg: float
+    baseline_m: float | None = None
+    source: str = ""
+
+    def intrinsics(self) -> Intrinsics:
+        return Intrinsics.from_fov(self.width, self.height, self.hfov_deg)
+
+
+RIG_PRESETS: dict[str, RigPreset] = {p.name: p for p in (
+    # Estimated from the road_defects_br train frames' ego-lane labels (bench/estimate_survey_rig.py,
+    # docs/survey_rig.md): horizon 48 px above the top row (IQR 45-52), lane width growing 1.36 px
+    # per row; with a 3.5 m lane and an assumed 60 deg field of view (not observable from lane
+    # lines alone): 2.33 m high (IQR 2.27-2.41), pitched 25.1 deg down (IQR 24.8-25.5).
+    RigPreset("survey", 512, 320, 60.0, 2.33, -25.1, None,
+              "estimated from road_defects_br lane labels; field of view assumed"),
+    # A windscreen dashcam: wide lens as a pinhole, car roof-line height, slightly down.
+    RigPreset("dashcam", 960, 540, 90.0, 1.3, -5.0, None, "nominal"),
+    # KITTI's colour stereo pair: 0.54 m baseline, 1.65 m above the road, level; fx 721.5 px at
+    # 1242x375 (its rectified calibration) -> 81.4 deg.
+    RigPreset("stereo", 1242, 375, 81.4, 1.65, 0.0, 0.54, "KITTI (Geiger et al. 2013) sensor setup"),
+    # Looking down at the pavement with a ZED-class stereo camera (0.12 m baseline, about 90 deg),
+    # as in Fan et al.'s stereo pothole frames; height and pitch nominal.
+    RigPreset("inspection", 855, 514, 90.0, 1.0, -60.0, 0.12, "nominal (ZED baseline)"),
+)}

@@ -1,5 +1,14 @@
 """Town layouts in USD: road segment meshes tagged with ``roadtwin:segment:kind``, composition
-rules on the root prim (``roadtwin:rules:*``) and optional terrain elevation samples."""
+rules on the root prim (``roadtwin:rules:*``), optional terrain elevation samples and lane
+markings.
+
+Lane markings are ``UsdGeom.BasisCurves`` (linear, one curve each, z = 0 like the planar
+segments) under ``/<root>/Markings``, ``widths`` = the paint width and ``purpose = guide``: they
+are data that the composer drapes into marking meshes, so renderers (Blender, usdview, Isaac Sim)
+must not draw the flat curve itself. Their style is in ``roadtwin:marking:*`` attributes
+(``type``/``color`` tokens; ``widthM``, ``dashM``, ``gapM``, ``phaseM``, ``spacingM`` doubles),
+the meaning of :class:`~roadtwin_core.model.LaneMarking`.
+"""
 from __future__ import annotations
 
 import json
@@ -11,7 +20,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..errors import RoadtwinError
-from ..model import ComposeRules, FixedDefect, RoadSegment, TownLayout
+from ..model import ComposeRules, FixedDefect, LaneMarking, RoadSegment, TownLayout
 from .stage import new_stage, read_mesh, set_kind, write_mesh
 
 SEGMENT_KIND = "roadtwin:segment:kind"
@@ -20,6 +29,9 @@ TERRAIN = "roadtwin:terrain"
 RULES = "roadtwin:rules:"
 PLACEMENT = "roadtwin:placement:"
 META = "roadtwin:layout:"
+MARKING = "roadtwin:marking:"
+_MARKING_NUMBERS = {"widthM": "width_m", "dashM": "dash_m", "gapM": "gap_m", "phaseM": "phase_m",
+                    "spacingM": "spacing_m"}
 _RULE_ATTRS = {"defectCount": "defect_count", "seed": "seed", "surface": "surface", "merger": "merger",
                "modelsPerType": "models_per_type", "edgeMarginM": "edge_margin_m", "spacingM": "spacing_m",
                "roadEdgeM": "road_edge_m", "wheelPathWeight": "wheel_path_weight", "densityPerKm": "density_per_km",
@@ -56,7 +68,14 @@ def read_layout(path: str | Path) -> TownLayout:
     segments: list[RoadSegment] = []
     fixed: list[FixedDefect] = []
     terrain = None
+    markings: list[LaneMarking] = []
     for prim in Usd.PrimRange(root):
+        if prim.HasAttribute(MARKING + "type"):
+            # Only the curves are layout data; a composed stage's draped marking meshes may carry
+            # the same attributes and are not read back as markings.
+            if prim.IsA(UsdGeom.BasisCurves):
+                markings.append(_read_marking(prim, path))
+            continue
         if prim.HasAttribute(PLACEMENT + "type"):
             fixed.append(_read_fixed(prim, path))
             continue
@@ -90,7 +109,43 @@ def read_layout(path: str | Path) -> TownLayout:
     if len(set(ids)) != len(ids):
         raise RoadtwinError(f"{path}: road segment names must be unique")
     metadata = {a.GetName()[len(META):]: str(a.Get()) for a in root.GetAttributes() if a.GetName().startswith(META)}
-    return TownLayout(root.GetName(), segments, read_rules(root, str(path)), str(path), terrain, fixed, metadata)
+    if len({m.id for m in markings}) != len(markings):
+        raise RoadtwinError(f"{path}: lane marking names must be unique")
+    return TownLayout(root.GetName(), segments, read_rules(root, str(path)), str(path), terrain, fixed, metadata,
+                      markings)
+
+
+def _read_marking(prim: Usd.Prim, path: Path) -> LaneMarking:
+    what = f"{path}: lane marking {prim.GetPath()}"
+    curves = UsdGeom.BasisCurves(prim)
+    pts = np.asarray(curves.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
+    counts = list(curves.GetCurveVertexCountsAttr().Get() or [len(pts)])
+    if len(counts) != 1 or counts[0] != len(pts):
+        raise RoadtwinError(f"{what}: needs exactly one curve (curveVertexCounts = [{len(pts)}]), got {counts}")
+    if not np.isfinite(pts).all():
+        raise RoadtwinError(f"{what}: has NaN or inf points")
+
+    def value(key: str, kind: type, default=None):
+        attr = prim.GetAttribute(MARKING + key)
+        v = attr.Get() if attr and attr.HasAuthoredValue() else None
+        if v is None:
+            if default is None:
+                raise RoadtwinError(f"{what}: needs {MARKING}{key}")
+            return default
+        number = isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+        if kind is float and number:
+            return float(v)
+        if kind is str and isinstance(v, str):
+            return v
+        raise RoadtwinError(f"{what}: {MARKING}{key} must be {'a number' if kind is float else 'a token'}, "
+                            f"got {v!r}")
+
+    numbers = {field: value(key, float, 0.0 if key != "widthM" else None) for key, field in _MARKING_NUMBERS.items()}
+    try:
+        return LaneMarking(prim.GetName(), value("type", str), value("color", str, "white"), points=pts[:, :2],
+                           **numbers)
+    except RoadtwinError as exc:
+        raise RoadtwinError(f"{what}: {str(exc).split(': ', 1)[-1]}") from None
 
 
 def _read_fixed(prim: Usd.Prim, path: Path) -> FixedDefect:
@@ -207,6 +262,8 @@ def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
         prim.CreateAttribute(PLACEMENT + "poseXYYaw", Sdf.ValueTypeNames.Double3, custom=True).Set((fd.x, fd.y, fd.yaw))
         prim.CreateAttribute(PLACEMENT + "scale", Sdf.ValueTypeNames.Double3, custom=True).Set(tuple(fd.scale))
         prim.CreateAttribute(PLACEMENT + "seed", Sdf.ValueTypeNames.Int, custom=True).Set(int(fd.seed))
+    if layout.markings:
+        _write_markings(stage, layout)
     if layout.terrain is not None:
         pts = UsdGeom.Points.Define(stage, f"/{layout.name}/Terrain")
         pts.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(layout.terrain, dtype=np.float32)))
@@ -215,3 +272,28 @@ def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
         pts.CreateExtentAttr(UsdGeom.Boundable.ComputeExtentFromPlugins(pts, 0))
     stage.GetRootLayer().Save()
     return path
+
+
+def _write_markings(stage: Usd.Stage, layout: TownLayout) -> None:
+    set_kind(UsdGeom.Xform.Define(stage, f"/{layout.name}/Markings").GetPrim(), "group")
+    names: set[str] = set()
+    for m in layout.markings:
+        name = _safe_name(m.id)
+        if name in names:
+            raise RoadtwinError(f"layout {layout.name}: two lane markings are both named {name!r} in USD")
+        names.add(name)
+        curves = UsdGeom.BasisCurves.Define(stage, f"/{layout.name}/Markings/{name}")
+        pts = np.zeros((len(m.points), 3), dtype=np.float32)
+        pts[:, :2] = m.points
+        curves.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+        curves.CreateCurveVertexCountsAttr(Vt.IntArray([len(pts)]))
+        curves.CreateTypeAttr(UsdGeom.Tokens.linear)
+        curves.CreateWidthsAttr(Vt.FloatArray([m.width_m]))
+        curves.SetWidthsInterpolation(UsdGeom.Tokens.constant)
+        curves.CreatePurposeAttr(UsdGeom.Tokens.guide)
+        curves.CreateExtentAttr(UsdGeom.Boundable.ComputeExtentFromPlugins(curves, Usd.TimeCode.Default()))
+        prim = curves.GetPrim()
+        prim.CreateAttribute(MARKING + "type", Sdf.ValueTypeNames.Token, custom=True).Set(m.marking_type)
+        prim.CreateAttribute(MARKING + "color", Sdf.ValueTypeNames.Token, custom=True).Set(m.color)
+        for key, field in _MARKING_NUMBERS.items():
+            prim.CreateAttribute(MARKING + key, Sdf.ValueTypeNames.Double, custom=True).Set(float(getattr(m, field)))

@@ -4,8 +4,10 @@ Strongest first: looks, semantics, physics, markings, defects, roads, then the u
 layout (copied into ``layout/``). Roads *override* the layout's planar segment meshes with the merged, elevated
 road surface, so muting ``roads.usda`` shows the input again. Defect instances carry their baked
 geometry (each one drapes over a different piece of road, so it cannot be shared). The physics
-layer holds one static triangle-mesh collider per segment with the defects baked in. Markings
-are draped paint meshes under ``/<root>/Markings``. The looks layer holds the materials and binds
+layer holds one static triangle-mesh collider per segment with the defects baked in. Lane
+markings are draped paint meshes under ``/<root>/MarkingMeshes``: ``/<root>/Markings`` already
+holds the layout's marking curves (guide-purpose BasisCurves, the input data), and a mesh over
+the same path would inherit the curve's attributes and purpose. The looks layer holds the materials and binds
 them (see ``looks.py``). Every rendered mesh carries ``primvars:st`` (the st convention of
 :mod:`roadtwin_core.looks`): lane-aligned on driving segments with a centreline, world-planar
 elsewhere.
@@ -28,6 +30,7 @@ from .stage import (apply_labels, lane_st, new_stage, planar_st, safe_prim_name,
 LAYERS = ("looks", "semantics", "physics", "markings", "defects", "roads")
 VARIANT_KINDS = ("driving", "junction")  # the surfaces the root's roadMaterial variant set switches
 DEFAULT_ROAD_MATERIAL = "asphalt"
+MARKING_MESHES = "MarkingMeshes"  # group of the draped paint meshes (the layout's curves are in "Markings")
 
 
 @dataclass
@@ -75,19 +78,22 @@ def road_variants(segments: list[RoadSegment]) -> dict[str, list[tuple[str, str]
 
 
 def _write_markings(path: Path, name: str, doc: str, markings: list[MarkingMesh], prim_names: list[str]) -> None:
-    """``/<root>/Markings/<id>`` meshes (kind component under a group), type and colour as attributes."""
+    """``/<root>/MarkingMeshes/<id>`` meshes (kind component under a group), type and colour as
+    token attributes (as on the layout's curves)."""
     root = f"/{name}"
     stage = new_stage(path, name, doc + ": lane markings draped on the road")
     _over(stage, root)
     if markings:
-        set_kind(UsdGeom.Xform.Define(stage, f"{root}/Markings").GetPrim(), "group")
+        set_kind(UsdGeom.Xform.Define(stage, f"{root}/{MARKING_MESHES}").GetPrim(), "group")
     for prim_name, m in zip(prim_names, markings):
-        mesh = UsdGeom.Mesh.Define(stage, f"{root}/Markings/{prim_name}")
+        mesh = UsdGeom.Mesh.Define(stage, f"{root}/{MARKING_MESHES}/{prim_name}")
         write_mesh(mesh, m.vertices, m.faces)
         write_st(mesh, planar_st(m.vertices))
         prim = mesh.GetPrim()
         set_kind(prim, "component")
-        set_attrs(prim, "roadtwin:marking", {"type": m.marking_type, "color": m.color, "id": m.id})
+        for key, value in (("type", m.marking_type), ("color", m.color)):
+            prim.CreateAttribute(f"roadtwin:marking:{key}", Sdf.ValueTypeNames.Token, custom=True).Set(value)
+        prim.CreateAttribute("roadtwin:marking:id", Sdf.ValueTypeNames.String, custom=True).Set(m.id)
     stage.GetRootLayer().Save()
 
 
@@ -161,7 +167,7 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
     for p in parts.placements:
         apply_labels(_over(sem, f"{root}/Defects/{p.instance_id}"), ["road_defect", p.model.defect_type])
     for name, m in zip(marking_names, parts.markings):
-        apply_labels(_over(sem, f"{root}/Markings/{name}"), ["lane_marking", m.marking_type])
+        apply_labels(_over(sem, f"{root}/{MARKING_MESHES}/{name}"), ["lane_marking", m.marking_type])
     sem.GetRootLayer().Save()
 
     looks = new_stage(outdir / "layers/looks.usda", lay.name, doc + ": materials and their bindings")
@@ -170,7 +176,7 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
     for i, p in enumerate(parts.placements):
         material = defect_material(p.model.defect_type)
         bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
-    bindings += [(f"{root}/Markings/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
+    bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
     write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
     looks.GetRootLayer().Save()
 

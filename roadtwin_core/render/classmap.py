@@ -1,0 +1,185 @@
+"""Class maps: roadtwin's semantic labels -> a dataset's classes, from a small TOML file.
+
+A rendered frame's semantic image holds roadtwin label ids (``background``, ``driving``,
+``sidewalk``, ``pothole``, ``crack`` ... as ``scene.class_names`` lists them; 255 ignore). A
+dataset (e.g. the real road_defects_br frames) has its own classes, some of which roadtwin has
+no label for: the *ego lane* is the lane the camera drives in, a property of the frame, not of
+the road. A class map says, in TOML::
+
+    name = "road_defects_br"
+    classes = ["background", "ego_lane", "crack", "pothole"]   # dataset ids 0, 1, 2, 3
+    unknown = "background"          # a stage label no entry names -> this class, or "ignore"
+    optional = ["lane_marking"]     # named labels a stage may lack
+    [map]
+    background = ["background", "driving", "sidewalk"]
+    ego_lane = {from = ["driving", "lane_marking"], rule = "ego"}
+    crack = ["crack"]
+    pothole = ["pothole"]
+
+Resolution per pixel: where the frame's ego mask is set and the pixel's label is listed under an
+``rule = "ego"`` class, that class; otherwise the class whose plain list holds the label;
+otherwise ``unknown``; roadtwin's ignore (255) stays 255. Each pixel has a single label, so
+defects override the lane simply by not being listed under the ego class. Without an ego mask
+(``ego=None``) the ego classes get no pixels. A label listed twice (two plain or two ego
+entries) is an error, so the mapping never depends on the file's order.
+
+Built-in maps ship as package data in ``roadtwin_core/render/classmaps/`` and are loaded by
+name (``load_class_map("road_defects_br")``). Needs Python 3.11+ (``tomllib``) and numpy only.
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import RoadtwinError
+
+IGNORE = 255
+RULES = ("ego",)
+
+
+@dataclass(frozen=True)
+class ClassMap:
+    name: str
+    classes: tuple[str, ...]                      # dataset classes, id = position
+    plain: dict[str, str]                         # roadtwin label -> dataset class
+    ego: dict[str, str]                           # roadtwin label -> dataset class inside the ego mask
+    unknown: str | None                           # dataset class, or None = ignore
+    optional: frozenset[str] = frozenset()
+    source: str = "<class map>"                   # the file, for messages
+
+    @property
+    def labels(self) -> list[str]:
+        """Every roadtwin label the map names (sorted)."""
+        return sorted(set(self.plain) | set(self.ego))
+
+    @property
+    def num_classes(self) -> int:
+        return len(self.classes)
+
+    def check_labels(self, stage_labels: Sequence[str], where: str = "the stage") -> None:
+        """Raise if the map names a label ``where`` lacks (``optional`` ones excepted)."""
+        have = set(stage_labels)
+        for label in self.labels:
+            if label not in have and label not in self.optional:
+                raise RoadtwinError(f"{self.source}: class map names label {label!r}, which {where} lacks "
+                                    f"(its labels: {', '.join(stage_labels)})")
+
+    def lookup_tables(self, stage_labels: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """Two 256-entry uint8 tables, stage label id -> dataset id: outside and inside the ego mask."""
+        if len(stage_labels) > IGNORE:
+            raise RoadtwinError(f"{len(stage_labels)} stage labels do not fit uint8 (255 is the ignore index)")
+        cid = {c: i for i, c in enumerate(self.classes)}
+        fallback = IGNORE if self.unknown is None else cid[self.unknown]
+        plain = np.full(256, IGNORE, dtype=np.uint8)
+        for i, label in enumerate(stage_labels):
+            plain[i] = cid[self.plain[label]] if label in self.plain else fallback
+        inside = plain.copy()
+        for i, label in enumerate(stage_labels):
+            if label in self.ego:
+                inside[i] = cid[self.ego[label]]
+        return plain, inside
+
+    def apply(self, labels: np.ndarray, stage_labels: Sequence[str], ego: np.ndarray | None = None) -> np.ndarray:
+        """Stage label ids (uint8 array, 255 ignore) -> dataset class ids (uint8, 255 ignore).
+
+        ``ego``: boolean array of the same shape, True where the camera's own lane is (the
+        renderer derives it from the lane id under each pixel), or None."""
+        labels = np.asarray(labels)
+        if labels.size and labels.min() < 0:
+            raise RoadtwinError(f"{self.source}: negative label ids")
+        bad = (labels >= len(stage_labels)) & (labels != IGNORE)
+        if bad.any():
+            raise RoadtwinError(f"{self.source}: label id {int(labels[bad].flat[0])} outside the stage's "
+                                f"{len(stage_labels)} labels")
+        plain, inside = self.lookup_tables(stage_labels)
+        idx = labels.astype(np.intp)
+        out = plain[idx]
+        if ego is not None:
+            ego = np.asarray(ego, dtype=bool)
+            if ego.shape != labels.shape:
+                raise RoadtwinError(f"ego mask shape {ego.shape} differs from the labels' {labels.shape}")
+            out = np.where(ego, inside[idx], out)
+        return out
+
+
+# ------------------------------------------------------------------------------------ loading
+def builtin_class_maps() -> list[str]:
+    """Names of the class maps shipped with roadtwin."""
+    return sorted(p.name[:-5] for p in resources.files(__package__).joinpath("classmaps").iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def load_class_map(spec: str | Path) -> ClassMap:
+    """A class map from a TOML file path, or a built-in one by name (``road_defects_br``)."""
+    path = Path(spec)
+    if path.suffix != ".toml" and not path.exists():
+        res = resources.files(__package__).joinpath("classmaps", f"{spec}.toml")
+        if not res.is_file():
+            raise RoadtwinError(f"no class map {str(spec)!r}: not a file, nor a built-in one "
+                                f"({', '.join(builtin_class_maps())})")
+        return parse_class_map(res.read_text(encoding="utf-8"), source=f"{spec} (built-in)")
+    if not path.is_file():
+        raise RoadtwinError(f"{path}: no such class map file")
+    return parse_class_map(path.read_text(encoding="utf-8"), source=str(path))
+
+
+def _names(value, what: str, source: str) -> list[str]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
+        raise RoadtwinError(f"{source}: {what} must be a non-empty list of label names")
+    return value
+
+
+def parse_class_map(text: str, source: str = "<class map>") -> ClassMap:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise RoadtwinError(f"{source}: not valid TOML ({exc})") from None
+    known_keys = {"name", "classes", "unknown", "optional", "map"}
+    extra = sorted(set(data) - known_keys)
+    if extra:
+        raise RoadtwinError(f"{source}: unknown key {extra[0]!r} (known: {', '.join(sorted(known_keys))})")
+    classes = data.get("classes")
+    if not isinstance(classes, list) or not classes or not all(isinstance(c, str) and c for c in classes):
+        raise RoadtwinError(f"{source}: 'classes' must be a non-empty list of class names")
+    if len(set(classes)) != len(classes):
+        raise RoadtwinError(f"{source}: 'classes' lists a class twice")
+    if len(classes) > IGNORE:
+        raise RoadtwinError(f"{source}: {len(classes)} classes do not fit uint8 (255 is the ignore index)")
+    unknown = data.get("unknown", "ignore")
+    if unknown != "ignore" and unknown not in classes:
+        raise RoadtwinError(f"{source}: unknown = {unknown!r} is neither a class nor \"ignore\"")
+    mapping = data.get("map")
+    if not isinstance(mapping, dict) or not mapping:
+        raise RoadtwinError(f"{source}: no [map] table")
+    plain: dict[str, str] = {}
+    ego: dict[str, str] = {}
+    for cls, entry in mapping.items():
+        if cls not in classes:
+            raise RoadtwinError(f"{source}: [map] entry {cls!r} is not one of the classes ({', '.join(classes)})")
+        target = plain
+        if isinstance(entry, dict):
+            rule = entry.get("rule")
+            if rule not in RULES:
+                raise RoadtwinError(f"{source}: [map] {cls}: rule {rule!r} unknown (known: {', '.join(RULES)})")
+            if set(entry) - {"from", "rule"}:
+                raise RoadtwinError(f"{source}: [map] {cls}: keys are 'from' and 'rule'")
+            labels = _names(entry.get("from"), f"[map] {cls}.from", source)
+            target = ego
+        else:
+            labels = _names(entry, f"[map] {cls}", source)
+        for label in labels:
+            if label in target:
+                raise RoadtwinError(f"{source}: label {label!r} is mapped twice ({target[label]} and {cls})")
+            target[label] = cls
+    optional = data.get("optional", [])
+    if optional:
+        optional = _names(optional, "'optional'", source)
+    return ClassMap(name=str(data.get("name", Path(source).stem)), classes=tuple(classes), plain=plain, ego=ego,
+                    unknown=None if unknown == "ignore" else unknown, optional=frozenset(optional), source=source)

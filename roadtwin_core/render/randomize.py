@@ -1,0 +1,253 @@
+"""Domain randomization: per-frame render parameters, scene-look choices and an image-space
+camera model, all a pure function of ``(seed, frame index)``.
+
+Why: a network trained on one sun, one exposure and noise-free renders learns the renderer, not
+the road. Real survey frames (road_defects_br) differ in sun position, white balance, exposure,
+sensor noise, motion blur at the bottom of the frame, vignetting and JPEG artefacts; drawing
+those per frame makes the synthetic set cover them.
+
+Three parts, drawn together by :func:`draw` (frame ``i`` uses ``default_rng([seed, i, stream])``
+and nothing else, so frames rendered on different workers or in another order come out the same):
+
+* ``RenderParams`` the renderer understands today: sun elevation and azimuth, weather (mostly
+  clear, some wet), wetness, haze (fog density);
+* :class:`SceneLook`: choices the looks/material work consumes once it lands (sky tint, road
+  wear and colour tint, wet patches, shoulder and verge surfaces); carried in frame metadata
+  until a renderer reads them;
+* :class:`ImageEffects` applied to the rendered *linear* RGB by :func:`apply_sensor`, in the
+  order light goes through a camera: motion blur (integration over the exposure while the car
+  moves) -> vignetting (optics) -> exposure -> photon (Poisson) + read (Gaussian) noise on the
+  sensor -> white-balance gains (ISP) -> tone curve and sRGB -> 8 bit -> JPEG. Labels, depth and
+  every other annotation stay untouched (a blurred label would be a wrong label).
+"""
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..errors import RoadtwinError
+from .cameras import Camera
+from .frames import RenderParams
+from .writers import to_srgb8
+
+_STREAM_DRAW, _STREAM_NOISE = 0, 1
+
+
+@dataclass(frozen=True)
+class Ranges:
+    """What :func:`draw` samples from (uniform unless said otherwise)."""
+
+    sun_elevation_deg: tuple[float, float] = (15.0, 75.0)
+    wet_probability: float = 0.12                 # weather "wet" (overcast, soaked) instead of "clear"
+    wetness: tuple[float, float] = (0.4, 1.0)     # when wet
+    haze_density: tuple[float, float] = (0.0, 0.004)   # 1/m exponential fog on clear days
+    wet_patch_probability: float = 0.25           # dry road with damp patches
+    wet_patch_coverage: tuple[float, float] = (0.05, 0.3)
+    exposure_ev: tuple[float, float] = (-0.6, 0.6)
+    wb_temperature: tuple[float, float] = (-0.12, 0.12)   # red up / blue down when positive
+    wb_tint: tuple[float, float] = (-0.04, 0.04)          # green
+    gain: tuple[float, float] = (1 / 3000, 1 / 300)       # photon noise: variance = gain * signal
+    read_noise: tuple[float, float] = (0.0005, 0.005)     # std, linear units
+    speed_mps: tuple[float, float] = (8.0, 25.0)          # survey vehicle speed
+    exposure_time_s: tuple[float, float] = (1 / 2000, 1 / 125)   # log-uniform
+    vignetting: tuple[float, float] = (0.2, 1.0)          # exponent scale of cos^4 falloff
+    jpeg_quality: tuple[int, int] = (60, 95)               # inclusive
+    sky_tint: tuple[float, float] = (-0.08, 0.08)
+    road_wear: tuple[float, float] = (0.0, 1.0)
+    road_tint: tuple[float, float] = (-0.06, 0.06)
+    shoulder_surfaces: tuple[str, ...] = ("asphalt", "asphalt_worn", "gravel")
+    verge_surfaces: tuple[str, ...] = ("grass", "grass", "dry_grass", "gravel", "dirt")
+
+    def check(self) -> "Ranges":
+        lo, hi = self.jpeg_quality
+        if not (1 <= lo <= hi <= 100):
+            raise RoadtwinError(f"randomization: JPEG quality range must lie in 1..100, got {self.jpeg_quality}")
+        lo, hi = self.sun_elevation_deg
+        if not (-10.0 <= lo <= hi <= 90.0):
+            raise RoadtwinError(f"randomization: sun elevation range must lie in -10..90 degrees, got {self.sun_elevation_deg}")
+        for name in ("wet_probability", "wet_patch_probability"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise RoadtwinError(f"randomization: {name} must be in [0, 1], got {getattr(self, name)}")
+        if min(self.gain) < 0 or min(self.read_noise) < 0 or min(self.exposure_time_s) <= 0:
+            raise RoadtwinError("randomization: noise gains, read noise and exposure times must be >= 0 (> 0 for times)")
+        return self
+
+
+@dataclass(frozen=True)
+class SceneLook:
+    """Appearance choices for the scene's materials (consumed by the looks/renderer work)."""
+
+    sky_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    road_wear: float = 0.0
+    road_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    wet_patch_coverage: float = 0.0
+    shoulder_surface: str = "asphalt"
+    verge_surface: str = "grass"
+
+
+@dataclass(frozen=True)
+class ImageEffects:
+    """The camera model's parameters for one frame (see :func:`apply_sensor`)."""
+
+    exposure: float = 1.0
+    wb_gains: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    gain: float = 0.0
+    read_noise: float = 0.0
+    travel_m: float = 0.0          # distance the car moves during the exposure (motion blur)
+    vignetting: float = 0.0        # 0 none, 1 natural cos^4 falloff
+    jpeg_quality: int = 95
+    noise_seed: tuple[int, ...] = (0,)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class FrameRandomization:
+    index: int
+    render: RenderParams
+    look: SceneLook
+    effects: ImageEffects
+
+    def as_dict(self) -> dict:
+        r = self.render
+        return {"index": self.index, "render": {"weather": r.weather, "sun_elevation_deg": r.sun_elevation_deg,
+                                                "sun_azimuth_deg": r.sun_azimuth_deg, "wetness": r.wetness,
+                                                "fog_density": r.fog_density},
+                "look": asdict(self.look), "effects": self.effects.as_dict()}
+
+
+def draw(seed: int, index: int, base: RenderParams | None = None, ranges: Ranges = Ranges()) -> FrameRandomization:
+    """Frame ``index``'s render parameters, look and image effects; depends on nothing else.
+    ``base`` supplies the fields not randomized (device, backend, label distance ...)."""
+    if seed < 0 or index < 0:
+        raise RoadtwinError(f"randomization: seed and frame index must be >= 0, got {seed}, {index}")
+    ranges.check()
+    rng = np.random.default_rng([seed, index, _STREAM_DRAW])
+    u = lambda lohi: float(rng.uniform(*lohi))   # noqa: E731 - one draw per call, in a fixed order
+    wet = bool(rng.random() < ranges.wet_probability)
+    sun_el = u(ranges.sun_elevation_deg)
+    sun_az = float(rng.uniform(-180.0, 180.0))
+    wetness = u(ranges.wetness) if wet else 0.0
+    haze = u(ranges.haze_density)
+    base = base or RenderParams()
+    render = RenderParams(**{**asdict(base), "weather": "wet" if wet else "clear", "sun_elevation_deg": sun_el,
+                             "sun_azimuth_deg": sun_az, "wetness": wetness, "fog_density": None if wet else haze})
+    patches = bool(rng.random() < ranges.wet_patch_probability) and not wet
+    coverage = u(ranges.wet_patch_coverage)
+    sky = u(ranges.sky_tint)
+    road_t = u(ranges.road_tint)
+    look = SceneLook(sky_tint=(1.0 - sky, 1.0 - sky / 2, 1.0 + sky), road_wear=u(ranges.road_wear),
+                     road_tint=(1.0 + road_t, 1.0, 1.0 - road_t), wet_patch_coverage=coverage if patches else 0.0,
+                     shoulder_surface=str(ranges.shoulder_surfaces[int(rng.integers(len(ranges.shoulder_surfaces)))]),
+                     verge_surface=str(ranges.verge_surfaces[int(rng.integers(len(ranges.verge_surfaces)))]))
+    temp, tint = u(ranges.wb_temperature), u(ranges.wb_tint)
+    t_lo, t_hi = ranges.exposure_time_s
+    t_exp = math.exp(rng.uniform(math.log(t_lo), math.log(t_hi)))
+    effects = ImageEffects(exposure=2.0 ** u(ranges.exposure_ev), wb_gains=(1.0 + temp, 1.0 + tint, 1.0 - temp),
+                           gain=u(ranges.gain), read_noise=u(ranges.read_noise), travel_m=u(ranges.speed_mps) * t_exp,
+                           vignetting=u(ranges.vignetting),
+                           jpeg_quality=int(rng.integers(ranges.jpeg_quality[0], ranges.jpeg_quality[1] + 1)),
+                           noise_seed=(int(seed), int(index), _STREAM_NOISE))
+    return FrameRandomization(index, render, look, effects)
+
+
+# ------------------------------------------------------------------------------ camera model
+def forward_flow(camera: Camera, depth: np.ndarray, travel_m: float) -> np.ndarray:
+    """(H, W, 2) image motion in pixels of each pixel's world point while the camera moves
+    ``travel_m`` along its horizontal heading (a car driving forward); 0 where there is no hit
+    (sky: infinitely far, no parallax)."""
+    k = camera.intrinsics
+    depth = np.asarray(depth, dtype=np.float64)
+    f = camera.rotation[:, 2]
+    h = np.array([f[0], f[1], 0.0])
+    h /= max(float(np.linalg.norm(h)), 1e-12)
+    t_cam = camera.rotation.T @ (travel_m * h)               # camera displacement in camera axes
+    u, v = np.meshgrid(np.arange(k.width, dtype=np.float64), np.arange(k.height, dtype=np.float64))
+    ok = np.isfinite(depth) & (depth > 0)
+    z = np.where(ok, depth, 1.0)
+    x, y = (u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z
+    z2 = np.maximum(z - t_cam[2], 1e-3)
+    u2 = k.fx * (x - t_cam[0]) / z2 + k.cx
+    v2 = k.fy * (y - t_cam[1]) / z2 + k.cy
+    return np.where(ok[..., None], np.stack([u2 - u, v2 - v], axis=-1), 0.0).astype(np.float32)
+
+
+def motion_blur(rgb: np.ndarray, flow: np.ndarray, max_taps: int = 25) -> np.ndarray:
+    """Average of the image sampled along each pixel's flow over the exposure (centred): the
+    blur a moving camera integrates; a pixel with no flow stays sharp."""
+    import cv2
+
+    rgb = np.ascontiguousarray(rgb, dtype=np.float32)
+    flow = np.asarray(flow, dtype=np.float32)
+    longest = float(np.abs(flow).max()) if flow.size else 0.0
+    if longest < 0.25:
+        return rgb.copy()
+    taps = int(min(max_taps, math.ceil(longest) + 1))
+    h, w = rgb.shape[:2]
+    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    acc = np.zeros_like(rgb)
+    for t in np.linspace(-0.5, 0.5, taps, dtype=np.float32):
+        acc += cv2.remap(rgb, gx + t * flow[..., 0], gy + t * flow[..., 1], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_REFLECT)
+    return acc / taps
+
+
+def vignetting(camera_or_size, strength: float) -> np.ndarray:
+    """(H, W) relative illumination cos(theta)^(4 * strength), theta the angle off the optical
+    axis: 1 at the principal point, falling monotonically towards the corners."""
+    k = camera_or_size.intrinsics if isinstance(camera_or_size, Camera) else camera_or_size
+    u, v = np.meshgrid(np.arange(k.width, dtype=np.float64), np.arange(k.height, dtype=np.float64))
+    r2 = ((u - k.cx) / k.fx) ** 2 + ((v - k.cy) / k.fy) ** 2      # tan^2(theta)
+    return (1.0 / (1.0 + r2)) ** (2.0 * strength)                  # cos^2 = 1 / (1 + tan^2)
+
+
+def sensor_noise(linear: np.ndarray, gain: float, read_noise: float, rng: np.random.Generator) -> np.ndarray:
+    """Photon noise (Poisson counts of ``signal / gain`` electrons, times ``gain``) plus
+    Gaussian read noise: variance = gain * signal + read_noise^2."""
+    x = np.maximum(np.asarray(linear, dtype=np.float64), 0.0)
+    if gain > 0:
+        x = rng.poisson(x / gain) * gain
+    if read_noise > 0:
+        x = x + rng.normal(0.0, read_noise, size=x.shape)
+    return x.astype(np.float32)
+
+
+def encode_jpeg(image8: np.ndarray, quality: int) -> bytes:
+    """JPEG bytes (Pillow, baseline, 4:2:0, no optimisation: same input, same bytes)."""
+    from PIL import Image
+
+    if not 1 <= int(quality) <= 100:
+        raise RoadtwinError(f"JPEG quality must be in 1..100, got {quality}")
+    buf = io.BytesIO()
+    Image.fromarray(np.asarray(image8, dtype=np.uint8)).save(buf, format="JPEG", quality=int(quality), subsampling=2,
+                                                             optimize=False)
+    return buf.getvalue()
+
+
+def decode_jpeg(data: bytes) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
+
+
+def apply_sensor(rgb: np.ndarray, effects: ImageEffects, camera: Camera | None = None,
+                 depth: np.ndarray | None = None) -> tuple[np.ndarray, bytes]:
+    """Rendered linear RGB (H, W, 3) -> what the camera records: (8-bit sRGB as decoded from the
+    JPEG, the JPEG bytes). Motion blur needs the camera and depth (without them none is
+    applied); vignetting needs the camera (the field of view sets the falloff)."""
+    x = np.asarray(rgb, dtype=np.float32)
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise RoadtwinError(f"sensor model: expected an (H, W, 3) linear RGB image, got shape {x.shape}")
+    if camera is not None and depth is not None and effects.travel_m > 0:
+        x = motion_blur(x, forward_flow(camera, depth, effects.travel_m))
+    if camera is not None and effects.vignetting > 0:
+        x = x * vignetting(camera, effects.vignetting)[..., None].astype(np.float32)
+    x = x * np.float32(effects.exposure)
+    x = sensor_noise(x, effects.gain, effects.read_noise, np.random.default_rng(list(effects.noise_seed)))
+    x = x * np.asarray(effects.wb_gains, dtype=np.float32)
+    data = encode_jpeg(to_srgb8(x), effects.jpeg_quality)
+    return decode_jpeg(data), data

@@ -1,0 +1,392 @@
+"""Camera views built for training data: a target share of frames with a pothole or crack in
+view, the rest at random along the lanes, each with per-frame rig jitter. numpy only.
+
+Why not plain random poses: on a real survey road defects are sparse, so uniformly placed
+cameras mostly see bare asphalt (the issue's six random views had 0-146 defect pixels of
+518,400). A network learns defects from frames that contain them, and learns not to invent
+them from frames that do not: the sampler controls that mix.
+
+Pieces:
+
+* :func:`chain_lanes` joins the per-segment lane centrelines of a town (a layout cuts a road
+  every 25 m) into continuous lanes, so a camera 20 m before a segment border sees past it and a
+  lane's arc length runs the whole road.
+* :func:`defect_targets` reads defect positions and types from a composed town
+  (``roadtwin:defect:poseXYYaw``).
+* :func:`sample_views` draws the poses. Frame ``i`` depends only on ``(seed, i)`` and the scene
+  (its own generator ``default_rng([seed, i])``; whether it targets a defect follows an even
+  spread of the share over the indices), so a sharded render draws the same frames.
+
+A defect is *in view* when, in plan, it lies ``near..far`` m ahead along the camera's heading
+and within half the horizontal field of view of it (:func:`in_view`). The camera sits on the
+vehicle: its height is above the road under the wheels and its pitch and roll follow the road's
+grade and crossfall (a car on a 2 % crown leans 1.1 degrees), plus the rig's jitter.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from ..errors import RoadtwinError
+from .cameras import Camera, GroundFn, Intrinsics, Lane, look_from, vehicle_height
+
+TARGET_TYPES = ("pothole", "crack")
+WHEELBASE_HALF_M, TRACK_HALF_M = 1.3, 0.8     # as cameras.vehicle_height samples the road
+
+
+@dataclass(frozen=True)
+class ViewRig:
+    """Where the camera sits on the vehicle and what it sees (a named preset converts to this)."""
+
+    mount_height_m: float = 2.4
+    pitch_deg: float = -12.0
+    hfov_deg: float = 60.0
+    width_px: int = 512
+    height_px: int = 320
+    roll_deg: float = 0.0
+
+    def intrinsics(self) -> Intrinsics:
+        return Intrinsics.from_fov(self.width_px, self.height_px, self.hfov_deg)
+
+    def check(self) -> "ViewRig":
+        if not (math.isfinite(self.mount_height_m) and self.mount_height_m > 0):
+            raise RoadtwinError(f"rig: mount height must be > 0 m, got {self.mount_height_m}")
+        if not -89.0 <= self.pitch_deg <= 89.0:
+            raise RoadtwinError(f"rig: pitch must be within +-89 degrees, got {self.pitch_deg}")
+        self.intrinsics()   # checks size and field of view
+        return self
+
+
+@dataclass(frozen=True)
+class Jitter:
+    """Half-widths of the uniform per-frame perturbations (a real rig bounces and drivers wander)."""
+
+    height_m: float = 0.15
+    pitch_deg: float = 2.0
+    roll_deg: float = 1.0
+    lateral_m: float = 0.4
+    yaw_deg: float = 1.5
+
+    def check(self) -> "Jitter":
+        for k, v in asdict(self).items():
+            if not (math.isfinite(v) and v >= 0):
+                raise RoadtwinError(f"view jitter {k} must be a finite number >= 0, got {v}")
+        return self
+
+
+@dataclass
+class ChainedLane(Lane):
+    """A continuous lane made of consecutive segments' centrelines; ``starts[k]`` is the arc
+    length where ``segments[k]`` begins."""
+
+    segments: tuple[str, ...] = ()
+    starts: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def segment_at(self, s: float) -> str:
+        k = int(np.searchsorted(self.starts, s, side="right")) - 1
+        return self.segments[min(max(k, 0), len(self.segments) - 1)]
+
+
+@dataclass
+class DefectTargets:
+    """Defect ids, types and plan positions (N,2) of a town."""
+
+    ids: list[str]
+    types: list[str]
+    xy: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.xy = np.asarray(self.xy, dtype=np.float64).reshape(-1, 2)
+        if not (len(self.ids) == len(self.types) == len(self.xy)):
+            raise RoadtwinError("defect targets: ids, types and positions differ in length")
+
+
+@dataclass
+class View:
+    """One sampled camera: pose, where it is on which lane, what it was aimed at, and the
+    jitter drawn for it (so a dataset's meta.json can say exactly how the frame was made)."""
+
+    index: int
+    camera: Camera
+    lane_id: str
+    segment_id: str
+    s_m: float
+    target: str | None                  # defect id the frame was aimed at (None: random frame)
+    in_view: tuple[str, ...]            # target-type defects in view (see in_view())
+    jitter: dict[str, float]
+
+    @property
+    def cam_to_world(self) -> np.ndarray:
+        return self.camera.cam_to_world
+
+    def as_dict(self) -> dict:
+        return {"index": self.index, "lane": self.lane_id, "segment": self.segment_id, "s_m": round(self.s_m, 4),
+                "target": self.target, "in_view": list(self.in_view), "jitter": self.jitter,
+                "cam_to_world": self.camera.cam_to_world.tolist()}
+
+
+# ------------------------------------------------------------------------------ lanes
+def chain_lanes(lanes: Sequence[Lane], tol_m: float = 0.05, max_turn_deg: float = 30.0) -> list[ChainedLane]:
+    """Join lanes whose end meets another's start (within ``tol_m``, heading change below
+    ``max_turn_deg``) into continuous lanes. A lane end with several candidate successors (a
+    junction) or a successor with several predecessors ends the chain there; a closed ring is
+    cut at its first lane (in input order). Output order follows the first lane of each chain in
+    the input order, so it is deterministic."""
+    lanes = [l for l in lanes if len(l.points) >= 2 and l.length > 1e-6]
+    if not lanes:
+        return []
+    starts = np.array([l.points[0] for l in lanes])
+    ends = np.array([l.points[-1] for l in lanes])
+    d_in = np.array([_unit(l.points[1] - l.points[0]) for l in lanes])
+    d_out = np.array([_unit(l.points[-1] - l.points[-2]) for l in lanes])
+    gap = np.linalg.norm(ends[:, None, :] - starts[None, :, :], axis=-1)
+    turn_ok = (d_out @ d_in.T) >= math.cos(math.radians(max_turn_deg))
+    link = (gap <= tol_m) & turn_ok
+    np.fill_diagonal(link, False)
+    succ = np.full(len(lanes), -1)
+    ok = (link.sum(1) == 1)
+    succ[ok] = link[ok].argmax(1)
+    npred = np.zeros(len(lanes), dtype=int)
+    for j in succ[succ >= 0]:
+        npred[j] += 1
+    succ[(succ >= 0) & (npred[np.maximum(succ, 0)] != 1)] = -1
+    has_pred = np.zeros(len(lanes), dtype=bool)
+    has_pred[succ[succ >= 0]] = True
+    used = np.zeros(len(lanes), dtype=bool)
+    chains = []
+    for head in [i for i in range(len(lanes)) if not has_pred[i]] + list(range(len(lanes))):
+        if used[head]:
+            continue                         # second pass: what is left are rings
+        order = []
+        k = head
+        while k >= 0 and not used[k]:
+            used[k] = True
+            order.append(k)
+            k = succ[k]
+        chains.append(order)
+    chains.sort(key=lambda c: c[0])
+    out = []
+    for order in chains:
+        pts = [lanes[order[0]].points]
+        lengths = [lanes[order[0]].length]
+        for k in order[1:]:
+            pts.append(lanes[k].points[1:])    # the shared joint point once
+            lengths.append(lanes[k].length)
+        first, last = lanes[order[0]].id, lanes[order[-1]].id
+        name = first if len(order) == 1 else f"{first}..{last}"
+        out.append(ChainedLane(name, np.concatenate(pts), tuple(lanes[k].id for k in order),
+                               np.concatenate([[0.0], np.cumsum(lengths)[:-1]])))
+    return out
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / max(float(np.linalg.norm(v)), 1e-12)
+
+
+def project_to_lane(lane: Lane, xy: np.ndarray, chunk: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    """Arc length ``s`` of the closest lane point and signed lateral offset (left of travel
+    positive) for plan points (N,2); exact on the polyline."""
+    xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+    a, b = lane.points[:-1], lane.points[1:]
+    ab = b - a
+    ll = np.maximum((ab ** 2).sum(1), 1e-24)
+    s_out, lat_out = np.empty(len(xy)), np.empty(len(xy))
+    for i0 in range(0, len(xy), chunk):
+        p = xy[i0:i0 + chunk]
+        ap = p[:, None, :] - a[None]
+        t = np.clip((ap * ab[None]).sum(-1) / ll[None], 0.0, 1.0)
+        diff = ap - t[..., None] * ab[None]
+        d2 = (diff ** 2).sum(-1)
+        k = d2.argmin(1)
+        rows = np.arange(len(p))
+        s_out[i0:i0 + chunk] = lane.cum[k] + t[rows, k] * np.sqrt(ll[k])
+        cross = ab[k, 0] * ap[rows, k, 1] - ab[k, 1] * ap[rows, k, 0]
+        lat_out[i0:i0 + chunk] = np.sign(cross) * np.sqrt(d2[rows, k])
+    return s_out, lat_out
+
+
+def lane_ahead(lane: Lane, s: float, length_m: float = 80.0, behind_m: float = 5.0, step_m: float = 0.5) -> np.ndarray:
+    """The lane centreline from ``behind_m`` before ``s`` to ``length_m`` after it (XY polyline,
+    travel order) — what the ego-lane labeller needs for one frame."""
+    a, b = max(0.0, s - behind_m), min(lane.length, s + length_m)
+    return lane.at(np.linspace(a, b, max(2, int(math.ceil((b - a) / step_m)) + 1)))
+
+
+# ------------------------------------------------------------------------------ defects
+def defect_targets(town) -> DefectTargets:
+    """Ids, types and plan positions of a composed town's defects (a ``TownScene`` from
+    ``roadtwin_core.usd.town_reader.load_town``)."""
+    ids, types, xy = [], [], []
+    for d in town.defects:
+        pose = d.attributes.get("poseXYYaw")
+        if pose is None or len(pose) < 2:
+            raise RoadtwinError(f"{getattr(town, 'source', 'town')}: defect {d.id} has no roadtwin:defect:poseXYYaw")
+        ids.append(d.id)
+        types.append(d.defect_type)
+        xy.append((float(pose[0]), float(pose[1])))
+    return DefectTargets(ids, types, np.array(xy).reshape(-1, 2))
+
+
+def in_view(cam_to_world: np.ndarray, xy: np.ndarray, hfov_deg: float, near_m: float = 5.0,
+            far_m: float = 25.0) -> np.ndarray:
+    """Which plan points lie ``near..far`` m ahead along the camera's heading and within half
+    the horizontal field of view of it (a plan-view test: roll and pitch are a few degrees)."""
+    xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+    if not len(xy):
+        return np.zeros(0, dtype=bool)
+    f = cam_to_world[:3, 2]
+    h = _unit(np.array([f[0], f[1]]))
+    d = xy - cam_to_world[:2, 3]
+    ahead = d @ h
+    side = d @ np.array([-h[1], h[0]])
+    bearing = np.abs(np.arctan2(side, ahead))
+    return (ahead >= near_m) & (ahead <= far_m) & (bearing <= math.radians(hfov_deg) / 2)
+
+
+# ------------------------------------------------------------------------------ sampling
+def road_attitude(ground: GroundFn, xy: np.ndarray, heading: float) -> tuple[float, float, float]:
+    """Road height under the vehicle and the grade pitch / crossfall roll (radians) it puts on
+    a body-mounted camera; a missing side counts as level."""
+    c, s = math.cos(heading), math.sin(heading)
+    z = float(vehicle_height(ground, xy[None], np.array([heading]))[0])
+
+    def mean_at(points):
+        zz = ground(np.asarray(points, dtype=np.float64))
+        zz = zz[np.isfinite(zz)]
+        return float(zz.mean()) if len(zz) else math.nan
+
+    fw, lt = np.array([c, s]), np.array([-s, c])
+    front = mean_at([xy + WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt, xy + WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt])
+    back = mean_at([xy - WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt, xy - WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt])
+    left = mean_at([xy + WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt, xy - WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt])
+    right = mean_at([xy + WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt, xy - WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt])
+    pitch = math.atan2(front - back, 2 * WHEELBASE_HALF_M) if math.isfinite(front - back) else 0.0
+    roll = math.atan2(left - right, 2 * TRACK_HALF_M) if math.isfinite(left - right) else 0.0
+    return z, pitch, roll
+
+
+def _is_targeted(i: int, share: float) -> bool:
+    """Spread ``share`` evenly over frame indices: every prefix of n frames has round-down
+    ``share * n`` (or one more) targeted frames, and frame i's role depends on i alone."""
+    return math.floor((i + 1) * share + 1e-9) > math.floor(i * share + 1e-9)
+
+
+def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn, n: int, *, rig: ViewRig = ViewRig(),
+                 share: float = 0.7, seed: int = 0, jitter: Jitter = Jitter(), near_m: float = 5.0, far_m: float = 25.0,
+                 target_types: Sequence[str] = TARGET_TYPES, max_lateral_m: float = 8.0, background: str = "uniform",
+                 start: int = 0, max_tries: int = 60) -> list[View]:
+    """Frames ``start .. start + n - 1``: a ``share`` of them aimed at a random pothole or crack
+    (``target_types``) placed ``near..far`` m ahead inside the field of view, the rest uniform
+    along the lanes (``background="uniform"``; ``"clear"`` redraws them until no target-type
+    defect is in view, falling back to the last draw after ``max_tries``). Targets are defects
+    within ``max_lateral_m`` of a lane centreline (own lane, the opposing one, the shoulders);
+    each is seen from every lane it lies near, in that lane's travel direction."""
+    rig.check()
+    jitter.check()
+    if n < 0:
+        raise RoadtwinError(f"number of views must be >= 0, got {n}")
+    if not 0.0 <= share <= 1.0:
+        raise RoadtwinError(f"share of views with defects must be in [0, 1], got {share}")
+    if not 0 <= near_m < far_m:
+        raise RoadtwinError(f"defect distance range must satisfy 0 <= near < far, got {near_m}..{far_m}")
+    if background not in ("uniform", "clear"):
+        raise RoadtwinError(f"background views must be 'uniform' or 'clear', got {background!r}")
+    if seed < 0:
+        raise RoadtwinError(f"seed must be >= 0, got {seed}")
+    lanes = [l for l in lanes if l.length > 2 * WHEELBASE_HALF_M]
+    if not lanes:
+        raise RoadtwinError("no lane centreline to place cameras on")
+    intr = rig.intrinsics()
+    lengths = np.array([l.length for l in lanes])
+    is_target = np.isin(np.asarray(defects.types, dtype=object), list(target_types)) if len(defects.ids) else np.zeros(0, bool)
+    target_xy = defects.xy[is_target]
+    target_ids = [i for i, t in zip(defects.ids, is_target) if t]
+    # Every (defect, lane) pair a targeted frame can use: the defect's arc length on the lane.
+    cand_defect, cand_lane, cand_s = [], [], []
+    for li, lane in enumerate(lanes):
+        if not len(target_xy):
+            break
+        s, lat = project_to_lane(lane, target_xy)
+        ok = (np.abs(lat) <= max_lateral_m) & (s > near_m + 1.0)
+        cand_defect.append(np.nonzero(ok)[0])
+        cand_lane.append(np.full(int(ok.sum()), li))
+        cand_s.append(s[ok])
+    cand_defect = np.concatenate(cand_defect) if cand_defect else np.zeros(0, int)
+    cand_lane = np.concatenate(cand_lane) if cand_lane else np.zeros(0, int)
+    cand_s = np.concatenate(cand_s) if cand_s else np.zeros(0)
+    if share > 0 and n > 0 and not len(cand_defect):
+        raise RoadtwinError(f"no {' or '.join(target_types)} lies within {max_lateral_m} m of a lane: "
+                            f"cannot aim {share:.0%} of the views at defects")
+
+    def draw(rng, lane_i: int, s: float) -> tuple[np.ndarray, dict] | None:
+        lane = lanes[lane_i]
+        heading = float(lane.heading(np.array([s]), window=2.0)[0])
+        lat = rng.uniform(-jitter.lateral_m, jitter.lateral_m)
+        xy = lane.at(np.array([s]))[0] + lat * np.array([-math.sin(heading), math.cos(heading)])
+        z, road_pitch, road_roll = road_attitude(ground, xy, heading)
+        if not math.isfinite(z):
+            return None
+        j = {"height_m": rng.uniform(-jitter.height_m, jitter.height_m),
+             "pitch_deg": rng.uniform(-jitter.pitch_deg, jitter.pitch_deg),
+             "roll_deg": rng.uniform(-jitter.roll_deg, jitter.roll_deg),
+             "lateral_m": lat, "yaw_deg": rng.uniform(-jitter.yaw_deg, jitter.yaw_deg)}
+        yaw = heading + math.radians(j["yaw_deg"])
+        pitch = math.radians(rig.pitch_deg + j["pitch_deg"]) + road_pitch
+        roll = math.radians(rig.roll_deg + j["roll_deg"]) + road_roll
+        m = look_from((xy[0], xy[1], z + rig.mount_height_m + j["height_m"]), yaw, pitch, roll)
+        return m, {k: round(float(v), 6) for k, v in j.items()}
+
+    views = []
+    for i in range(start, start + n):
+        rng = np.random.default_rng([seed, i])
+        aimed = share > 0 and _is_targeted(i, share)
+        chosen = None
+        for _ in range(max_tries):
+            if aimed:
+                c = int(rng.integers(len(cand_defect)))
+                lane_i = int(cand_lane[c])
+                s = float(cand_s[c]) - rng.uniform(near_m + 0.5, far_m - 0.5)
+                if s < WHEELBASE_HALF_M:
+                    continue
+            else:
+                lane_i = int(rng.choice(len(lanes), p=lengths / lengths.sum()))
+                s = float(rng.uniform(WHEELBASE_HALF_M, lanes[lane_i].length - WHEELBASE_HALF_M))
+            got = draw(rng, lane_i, s)
+            if got is None:
+                continue
+            m, j = got
+            seen = in_view(m, target_xy, rig.hfov_deg, near_m, far_m) if len(target_xy) else np.zeros(0, bool)
+            if aimed and not seen[cand_defect[c]]:
+                continue
+            chosen = (m, j, lane_i, s, target_ids[cand_defect[c]] if aimed else None, seen)
+            if aimed or background == "uniform" or not seen.any():
+                break
+        if chosen is None:
+            what = "aim a view at a defect" if aimed else "place a view on a lane (the road is missing under them)"
+            raise RoadtwinError(f"view {i}: could not {what} in {max_tries} tries")
+        m, j, lane_i, s, target, seen = chosen
+        lane = lanes[lane_i]
+        seg = lane.segment_at(s) if isinstance(lane, ChainedLane) and lane.segments else lane.id
+        views.append(View(i, Camera(intr, m), lane.id, seg, s, target,
+                          tuple(target_ids[k] for k in np.nonzero(seen)[0]), j))
+    return views
+
+
+def stage_views(stage_path, town, ground: GroundFn, n: int, **options) -> tuple[list[View], list[ChainedLane]]:
+    """What ``roadtwin render --views defects:SHARE`` does: the stage's driving lanes chained,
+    its defects as targets, then :func:`sample_views` (``options`` are passed on). Returns the
+    views and the chained lanes (the ego-lane labeller takes ``lane_ahead`` of a view's lane)."""
+    from .scene import stage_lanes
+
+    lanes = chain_lanes(stage_lanes(stage_path))
+    if not lanes:
+        raise RoadtwinError(f"{stage_path}: no driving lane centrelines (roadtwin:segment:centerline) to place views on")
+    return sample_views(lanes, defect_targets(town), ground, n, **options), lanes
+
+
+def share_with_targets(views: Sequence[View]) -> float:
+    """Fraction of views with at least one target-type defect in view."""
+    return float(np.mean([bool(v.in_view) for v in views])) if views else 0.0
