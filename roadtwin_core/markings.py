@@ -242,9 +242,11 @@ def triangulate_paint(geom, spacing_m: float = SPACING_M, surface: RoadPatch | N
             out = triangle.triangulate(_pslg(poly, spacing_m, np.zeros((0, 2, 2))), flags)
         if "triangles" not in out or not len(out["triangles"]):
             continue
-        verts.append(out["vertices"])
-        faces.append(out["triangles"] + n)
-        n += len(out["vertices"])
+        # Keep only vertices a triangle uses (Triangle keeps input points it merged as duplicates).
+        used, tris = np.unique(out["triangles"], return_inverse=True)
+        verts.append(out["vertices"][used])
+        faces.append(tris.reshape(-1, 3) + n)
+        n += len(used)
     if not verts:
         return np.zeros((0, 2)), np.zeros((0, 3), dtype=np.int64)
     v, f = np.concatenate(verts), np.concatenate(faces).astype(np.int64)
