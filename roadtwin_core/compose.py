@@ -14,6 +14,8 @@ import numpy as np
 from .atomic import atomic_output_dir
 from .errors import RoadtwinError
 from .executors import make_executor
+from .looks import write_textures
+from .markings import build_markings
 from .model import ComposeRules, DefectModel, Placement, TownLayout
 from .params import make_params
 from .placement import lane_length_km, place_defects
@@ -122,6 +124,9 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     merged = runner.map(_merge_segment, (merger_impl, surf, rules), work,
                         lambda done, total: report("merge", done, total))
     t_merge = time.perf_counter()
+    markings = build_markings(layout.markings, layout.segments, merged, placements)
+    report("markings", 1, 1)
+    t_markings = time.perf_counter()
 
     with atomic_output_dir(outdir) as tmp:
         (tmp / "layout").mkdir()
@@ -134,8 +139,10 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             library_files[m.name] = f"./library/{m.name}.usda"
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
                 "merger": rules.merger, "defectCount": len(placements)}
+        materials = write_textures(tmp / "textures", rules.seed)
+        t_textures = time.perf_counter()
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
-                                         library_files, info))
+                                         library_files, info, markings, materials))
         report("write", 1, 1)
         findings = validate_stage(town)
         errors = [f for f in findings if f.severity == "Error"]
@@ -143,7 +150,10 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             raise RoadtwinError(f"composed stage fails validation: {errors[0].validator}: {errors[0].message}")
         t_write = time.perf_counter()
         summary = _summary(layout, placements, merged, rules, findings,
-                           {"place_s": t_place - t0, "merge_s": t_merge - t_place, "write_s": t_write - t_merge})
+                           {"place_s": t_place - t0, "merge_s": t_merge - t_place, "markings_s": t_markings - t_merge,
+                            "textures_s": t_textures - t_markings, "write_s": t_write - t_textures})
+        summary["markings"] = len(markings)
+        summary["materials"] = len(materials)
         if preview:
             from .preview import write_preview
 

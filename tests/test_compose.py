@@ -18,13 +18,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Kind, Sdf, Usd, UsdGeom, UsdPhysics, UsdSemantics, UsdValidation
+from pxr import Kind, Sdf, Usd, UsdGeom, UsdPhysics, UsdSemantics, UsdShade, UsdValidation
 
 REPO = Path(__file__).resolve().parents[1]
 TOWN = REPO / "stages" / "town.usda"
 N_DEFECTS = 12
 SEED = 7
-LAYER_ORDER = ["semantics", "physics", "defects", "roads", "layout"]
+LAYER_ORDER = ["looks", "semantics", "physics", "markings", "defects", "roads", "layout"]  # DESIGN.md
 DEPRESSION_TYPES = {"pothole", "depression", "rut", "crack"}
 ROOT = "/Town"
 
@@ -105,6 +105,10 @@ def test_files_and_summary(out):
     assert summary["defects"] == N_DEFECTS
     assert summary["seed"] == SEED
     assert summary["validation"]["errors"] == 0
+    looks = Usd.Stage.Open(str(out / "layers" / "looks.usda"))
+    assert summary["materials"] == sum(p.IsA(UsdShade.Material) for p in looks.Traverse()) > 0
+    marks = Usd.Stage.Open(str(out / "layers" / "markings.usda"))
+    assert summary["markings"] == sum(p.IsA(UsdGeom.Mesh) for p in marks.Traverse())
     for key in ("place_s", "merge_s", "write_s"):
         assert summary["timings_s"][key] >= 0
     # The input layout is copied untouched.
@@ -151,8 +155,8 @@ def test_sublayer_order(out):
     subs = list(layer.subLayerPaths)
     assert len(subs) == len(LAYER_ORDER)
     resolved = [(out / p).resolve() for p in subs]
-    assert resolved[:4] == [(out / "layers" / f"{n}.usda").resolve() for n in LAYER_ORDER[:4]]
-    assert resolved[4] == (out / "layout" / TOWN.name).resolve()
+    assert resolved[:-1] == [(out / "layers" / f"{n}.usda").resolve() for n in LAYER_ORDER[:-1]]
+    assert resolved[-1] == (out / "layout" / TOWN.name).resolve()
     assert all(p.is_file() for p in resolved)
 
 
@@ -164,7 +168,7 @@ def test_renderable_meshes_have_road_labels(stage):
         if not prim.IsA(UsdGeom.Mesh) or UsdGeom.Imageable(prim).ComputePurpose() == UsdGeom.Tokens.guide:
             continue
         labels = set(query.ComputeUniqueInheritedLabels(prim))
-        assert labels & {"road", "road_defect"}, f"{prim.GetPath()}: labels {sorted(labels)}"
+        assert labels & {"road", "road_defect", "lane_marking"}, f"{prim.GetPath()}: labels {sorted(labels)}"
         n += 1
     assert n > N_DEFECTS
 
@@ -302,7 +306,7 @@ def test_muting_roads_restores_planar_layout(out, layout_meshes):
 # --------------------------------------------------------------------------- determinism
 def stage_files(out: Path) -> dict[str, bytes]:
     files = [out / "town.usda", *(out / "layers").glob("*.usda"), *(out / "library").glob("*.usda"),
-             *(out / "layout").glob("*")]
+             *(out / "layout").glob("*"), *(out / "textures").glob("*")]
     return {str(p.relative_to(out)): p.read_bytes() for p in files}
 
 

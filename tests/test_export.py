@@ -1,7 +1,8 @@
 """The built-in exporters (usdz, glb, obj, ply), checked against the USD stage itself.
 
 A small town is composed once per module; every expectation (mesh count, areas, triangle count,
-bounds, defect prims) is computed here straight from pxr, independently of the plugin's reader.
+bounds, defect prims, bound materials, texture coordinates and texture pixels) is computed here
+straight from pxr and Pillow, independently of the plugin's reader.
 """
 from __future__ import annotations
 
@@ -15,7 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdSemantics, Vt
+from PIL import Image
+from scipy.spatial import cKDTree
+from pxr import Ar, Gf, Sdf, Usd, UsdGeom, UsdSemantics, UsdShade, Vt
 
 from roadtwin_core import RoadtwinError, get_plugin_manager
 from roadtwin_core.compose import compose
@@ -48,7 +51,12 @@ def usd_reference(stage_path: Path) -> dict:
             i += c
         t = pts[np.array(tris)]
         area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1).sum()
-        meshes[str(prim.GetPath())] = {"points": pts, "triangles": len(tris), "area": area}
+        material = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()[0]
+        diffuse = stage.GetPrimAtPath(material.GetPath().AppendChild("Diffuse"))
+        meshes[str(prim.GetPath())] = {
+            "points": pts, "triangles": len(tris), "area": area, "material": material.GetPath().name,
+            "st": np.array(UsdGeom.PrimvarsAPI(prim).GetPrimvar("st").Get(), dtype=np.float64),
+            "diffuse": diffuse.GetAttribute("inputs:file").Get().resolvedPath}
     defects = stage.GetPrimAtPath("/Town/Defects").GetChildren()
     allpts = np.concatenate([m["points"] for m in meshes.values()])
     return {
@@ -138,7 +146,25 @@ def test_glb(exported, ref):
     gltf = json.loads(data[20:20 + n])
     classes = {node["name"]: node["extras"]["class"] for node in gltf["nodes"] if "mesh" in node}
     assert {c for name, c in classes.items() if "Defects" in name} == {"road_defect"}
-    assert {c for name, c in classes.items() if "Defects" not in name} == {"road"}
+    assert {c for name, c in classes.items() if "/Roads/" in name} == {"road"}
+    assert {c for name, c in classes.items() if "/MarkingMeshes/" in name} <= {"lane_marking"}
+    # each node's mesh carries its prim's bound USD material, each material is stored once
+    used = set()
+    for node in gltf["nodes"]:
+        if "mesh" in node:
+            (primitive,) = gltf["meshes"][node["mesh"]]["primitives"]
+            material = gltf["materials"][primitive["material"]]
+            assert material["name"] == ref["meshes"]["/" + node["name"]]["material"], node["name"]
+            assert "baseColorTexture" in material["pbrMetallicRoughness"] and "TEXCOORD_0" in primitive["attributes"]
+            used.add(material["name"])
+    assert len(gltf["materials"]) == len(used) == len({m["material"] for m in ref["meshes"].values()}) >= 3
+    assert len(gltf["images"]) <= 3 * len(used)     # diffuse, metallicRoughness and normal, each stored once
+    # texture coordinates are USD's st, the image is the USD diffuse texture
+    for name, mesh in meshes.items():
+        want = ref["meshes"]["/" + name]
+        assert np.asarray(mesh.visual.uv) == pytest.approx(want["st"], abs=1e-5), name
+        got = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+        assert np.array_equal(got, np.asarray(Image.open(want["diffuse"]).convert("RGB"))), name
 
 
 def test_obj(exported, ref):
@@ -149,7 +175,24 @@ def test_obj(exported, ref):
     _check_meshes(dict(scene.geometry), ref)
     lo, hi = scene.bounds  # Z-up kept
     assert lo == pytest.approx(ref["lo"], abs=1e-5) and hi == pytest.approx(ref["hi"], abs=1e-5)
-    assert {g.visual.material.name for n, g in scene.geometry.items() if "Defects" in n} == {"road_defect"}
+    for name, g in scene.geometry.items():
+        want = ref["meshes"]["/" + name]
+        assert g.visual.material.name == want["material"], name
+        # OBJ readers merge points that share position and uv: match each by position
+        _, nearest = cKDTree(want["points"]).query(g.vertices)
+        assert np.asarray(g.visual.uv) == pytest.approx(want["st"][nearest], abs=1e-6), name
+    # the .mtl names a diffuse texture per material, written beside it with the USD texture's pixels
+    maps = {}
+    for line in mtl.read_text().splitlines():
+        if line.startswith("newmtl "):
+            current = line.split()[1]
+        elif line.startswith("map_Kd "):
+            maps[current] = obj.with_name(line.split()[1])
+    diffuse = {m["material"]: m["diffuse"] for m in ref["meshes"].values()}
+    assert set(maps) == set(diffuse)
+    for name, path in maps.items():
+        assert path.is_file(), path
+        assert np.array_equal(np.asarray(Image.open(path).convert("RGB")), np.asarray(Image.open(diffuse[name]).convert("RGB")))
 
 
 def test_ply(exported, ref):
@@ -164,7 +207,10 @@ def test_ply(exported, ref):
     defect_faces = np.isin(faces["prim_id"], [i for i, p in prims.items() if "/Defects/" in p])
     assert defect_faces.sum() == sum(m["triangles"] for p, m in ref["meshes"].items() if "/Defects/" in p)
     assert (faces["class_id"][defect_faces] == int(classes["road_defect"])).all()
-    assert (faces["class_id"][~defect_faces] == int(classes["road"])).all()
+    road_faces = np.isin(faces["prim_id"], [i for i, p in prims.items() if "/Roads/" in p])
+    assert (faces["class_id"][road_faces] == int(classes["road"])).all()
+    paint_faces = ~defect_faces & ~road_faces
+    assert not paint_faces.any() or (faces["class_id"][paint_faces] == int(classes["lane_marking"])).all()
     assert (mesh.visual.face_colors[defect_faces][:, :3] == [200, 30, 30]).all()
     assert mesh.bounds[0] == pytest.approx(ref["lo"], abs=1e-5)  # Z-up kept
 
@@ -177,8 +223,15 @@ def test_usdz(exported, ref, town):
     assert len(rendered) == len(ref["meshes"])
     assert UsdGeom.GetStageUpAxis(stage) == "Z"
     names = zipfile.ZipFile(exported["usdz"]).namelist()
-    assert names[0] == "town.usda" and "layers/defects.usda" in names
+    assert names[0] == "town.usda" and "layers/defects.usda" in names and "layers/looks.usda" in names
     assert any(n.startswith("library/") for n in names)   # the defect library assets came along
+    textures = {f"textures/{p.name}" for p in (town.parent / "textures").iterdir()}
+    assert textures and textures <= set(names)             # every texture travels inside the package
+    for prim in rendered:                                   # and the bound materials resolve to them
+        material = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()[0]
+        assert material.GetPath().name == ref["meshes"][str(prim.GetPath())]["material"]
+        file = stage.GetPrimAtPath(material.GetPath().AppendChild("Diffuse")).GetAttribute("inputs:file").Get()
+        assert ".usdz[" in file.resolvedPath and Ar.GetResolver().OpenAsset(Ar.ResolvedPath(file.resolvedPath))
 
 
 # --------------------------------------------------------------------------- bad input

@@ -17,6 +17,12 @@ labels of its own takes those of its nearest labelled ancestor (defect meshes un
 ``/Town/Defects/<id>`` inherit ``["road_defect", <type>]``), and the first label is the part's
 class (``road``, ``road_defect`` ...). Custom ``roadtwin:*`` attributes of the prim and its
 ancestors below the root (nearest wins) travel along as ``attrs``.
+
+Appearance: ``primvars:st`` (vertex or varying interpolation) travels as ``st``, and the bound
+``UsdShade`` material (``ComputeBoundMaterial``) as a :class:`Look`: the files of the
+``UsdUVTexture`` shaders feeding its ``UsdPreviewSurface`` diffuseColor, roughness and normal
+inputs (resolved paths), or their constant values. A faceVarying st is not carried (the part
+then has no texture coordinates and exporters fall back to the material's flat colour).
 """
 from __future__ import annotations
 
@@ -26,12 +32,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdSemantics
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdSemantics, UsdShade
 
 from roadtwin_core import RoadtwinError
 
 TAXONOMY = "class"
 TIME = Usd.TimeCode.EarliestTime()  # the default value, else the first time sample
+
+
+@dataclass(frozen=True)
+class Look:
+    """A bound UsdPreviewSurface material as files (resolved paths) and constants."""
+    name: str                                  # material prim name, "asphalt_worn"
+    path: str                                  # material prim path, "/Town/Looks/asphalt_worn"
+    diffuse_file: str | None = None
+    diffuse_color: tuple[float, float, float] = (0.18, 0.18, 0.18)
+    roughness_file: str | None = None
+    roughness: float = 0.5
+    normal_file: str | None = None
+    metallic: float = 0.0
 
 
 @dataclass
@@ -42,6 +61,8 @@ class Part:
     faces: np.ndarray                          # (m, 3) int64
     labels: list[str] = field(default_factory=list)
     attrs: dict[str, Any] = field(default_factory=dict)
+    st: np.ndarray | None = None               # (n, 2) texture coordinates, USD convention (origin bottom-left)
+    look: Look | None = None
 
     @property
     def name(self) -> str:
@@ -139,7 +160,50 @@ def _part(mesh: UsdGeom.Mesh, path: str, xform: np.ndarray, labels_from: Usd.Pri
     if flip:
         faces = faces[:, ::-1]
     src = labels_from if labels_from is not None else prim
-    return Part(path, pts, np.ascontiguousarray(faces), labels_of(src), roadtwin_attrs(src))
+    return Part(path, pts, np.ascontiguousarray(faces), labels_of(src), roadtwin_attrs(src), st_of(prim, len(pts)),
+                look_of(prim))
+
+
+def st_of(prim: Usd.Prim, n_points: int) -> np.ndarray | None:
+    """``primvars:st`` per point (vertex/varying interpolation, indices flattened), else None."""
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar("st")
+    if not pv or pv.GetInterpolation() not in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
+        return None
+    value = pv.ComputeFlattened(TIME)
+    st = np.asarray(value if value is not None else [], dtype=np.float64).reshape(-1, 2)
+    return st if len(st) == n_points else None
+
+
+def look_of(prim: Usd.Prim) -> Look | None:
+    """The bound material's UsdPreviewSurface inputs (texture files or constants), if any."""
+    material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+    if not material:
+        return None
+    mpath = material.GetPath()
+    shader, _, _ = material.ComputeSurfaceSource()
+    if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
+        return Look(mpath.name, str(mpath))
+
+    def texture_or_value(name: str):
+        inp = shader.GetInput(name)
+        if not inp:
+            return None, None
+        sources = inp.GetConnectedSources()[0]
+        if sources:
+            tex = UsdShade.Shader(sources[0].source.GetPrim())
+            file = tex.GetInput("file") if tex and tex.GetIdAttr().Get() == "UsdUVTexture" else None
+            asset = file.Get() if file else None
+            return (asset.resolvedPath or None) if asset else None, None
+        return None, inp.Get()
+
+    diffuse_file, diffuse = texture_or_value("diffuseColor")
+    rough_file, rough = texture_or_value("roughness")
+    normal_file, _ = texture_or_value("normal")
+    _, metallic = texture_or_value("metallic")
+    return Look(mpath.name, str(mpath), diffuse_file,
+                tuple(float(c) for c in diffuse) if diffuse is not None else (0.18, 0.18, 0.18),
+                rough_file, float(rough) if rough is not None else 0.5, normal_file,
+                float(metallic) if metallic is not None else 0.0)
 
 
 def triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:

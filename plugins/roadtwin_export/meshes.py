@@ -9,12 +9,18 @@ and proxy purposes such as the physics colliders skipped) and keep road and defe
   handedness are kept), baked into the vertices. Units stay meters (glTF's unit). Each node's
   and mesh's ``extras`` hold ``{"class": "road_defect", "labels": ["road_defect", "pothole"],
   "usdPath": "/Town/...", "roadtwin": {...custom roadtwin:* attributes...}}``; the scene's extras
-  note the source and the axis conversion. Materials: road grey, road_defect red.
+  note the source and the axis conversion. Materials: each mesh carries its prim's bound USD
+  material (one glb material per USD material, shared, named like it): baseColorTexture = the
+  diffuse texture with texture coordinates from ``primvars:st``, roughness/metallic as constants
+  or a metallicRoughness texture built from the roughness map, normalTexture from the normal map.
+  So road, defects and markings stay apart (their own nodes and materials). A prim with no bound
+  material (a foreign stage) gets its class colour (road grey, road_defect red).
 - **obj**: Z-up meters, as in USD. One ``o <prim path>`` (plus a matching ``g``) per prim and a
-  ``usemtl <class>`` (road grey, road_defect red ...); the ``.mtl`` is written beside the
-  ``.obj`` with the same stem (``town.obj`` + ``town.mtl``). Read it back per prim with
-  ``trimesh.load(path, split_objects=True, group_material=False)``; trimesh's default groups by
-  material instead (one mesh per class).
+  ``usemtl <material>`` (the bound USD material's name; the class name and colour when none);
+  the ``.mtl`` is written beside the ``.obj`` with the same stem (``town.obj`` + ``town.mtl``),
+  with ``map_Kd <material>.png`` and those diffuse textures beside it too. Read it back per prim
+  with ``trimesh.load(path, split_objects=True, group_material=False)``; trimesh's default
+  groups by material instead.
 - **ply**: Z-up meters. PLY has no groups, so it is one mesh (binary little-endian) whose faces
   carry ``red green blue alpha`` (the class colour: road grey, road_defect red) and two integer
   properties: ``class_id`` and ``prim_id``. Header comments map them back: ``comment class
@@ -27,8 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
+from roadtwin_core import RoadtwinError
+
 from ._atomic import atomic_files
-from ._stage import Part, collect_parts, open_stage
+from ._stage import Look, Part, collect_parts, open_stage
 
 # Z-up -> Y-up for glTF, as a row-vector rotation: (x, y, z) -> (x, z, -y).
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0],
@@ -60,9 +68,47 @@ def _material(cls: str, color: tuple[int, int, int, int]) -> "PBRMaterial":
                        doubleSided=True)
 
 
+def _image(path: str, mode: str):
+    """A texture as a PIL image, read through USD's asset resolver (plain files and usdz members)."""
+    import io
+
+    from PIL import Image
+    from pxr import Ar
+
+    asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(path))
+    if asset is None:
+        raise RoadtwinError(f"{path}: texture cannot be read")
+    return Image.open(io.BytesIO(bytes(asset.GetBuffer()))).convert(mode)
+
+
+def _look_material(look: Look, textured: bool) -> "PBRMaterial":
+    """glTF metallic-roughness material from a UsdPreviewSurface look; textures only when the
+    part has texture coordinates."""
+    import numpy as np
+    from PIL import Image
+    from trimesh.visual.material import PBRMaterial
+
+    kw = {"name": look.name, "doubleSided": True, "metallicFactor": look.metallic, "roughnessFactor": look.roughness}
+    if textured and look.diffuse_file:
+        kw["baseColorTexture"] = _image(look.diffuse_file, "RGB")
+        kw["baseColorFactor"] = [255, 255, 255, 255]
+    else:
+        kw["baseColorFactor"] = [int(round(255 * min(max(c, 0.0), 1.0))) for c in look.diffuse_color] + [255]
+    if textured and look.roughness_file:
+        g = np.asarray(_image(look.roughness_file, "L"))
+        rgb = np.stack([np.zeros_like(g), g, np.full_like(g, int(round(255 * look.metallic)))], axis=-1)
+        kw.update(metallicRoughnessTexture=Image.fromarray(rgb), roughnessFactor=1.0, metallicFactor=1.0)
+    if textured and look.normal_file:
+        kw["normalTexture"] = _image(look.normal_file, "RGB")
+    return PBRMaterial(**kw)
+
+
 def _extras(part: Part) -> dict:
-    return {"class": part.semantic_class, "labels": list(part.labels), "usdPath": part.path,
-            "roadtwin": part.attrs}
+    extras = {"class": part.semantic_class, "labels": list(part.labels), "usdPath": part.path,
+              "roadtwin": part.attrs}
+    if part.look is not None:
+        extras["material"] = part.look.path
+    return extras
 
 
 def _scene(parts: list[Part], rotate: np.ndarray | None, with_extras: bool) -> "trimesh.Scene":
@@ -71,13 +117,20 @@ def _scene(parts: list[Part], rotate: np.ndarray | None, with_extras: bool) -> "
 
     _, colors = _class_table(parts)
     materials = {c: _material(c, col) for c, col in colors.items()}
+    looks: dict[tuple[str, bool], "PBRMaterial"] = {}   # one material object per USD material: stored once
     scene = trimesh.Scene()
     for part in parts:
         v = part.vertices @ rotate if rotate is not None else part.vertices
         extras = _extras(part) if with_extras else {}
-        mesh = trimesh.Trimesh(v, part.faces, process=False, validate=False,
-                               visual=TextureVisuals(material=materials[part.semantic_class]),
-                               metadata=dict(extras))
+        if part.look is not None:
+            textured = part.st is not None
+            key = (part.look.path, textured)
+            if key not in looks:
+                looks[key] = _look_material(part.look, textured)
+            visual = TextureVisuals(uv=part.st, material=looks[key])
+        else:
+            visual = TextureVisuals(material=materials[part.semantic_class])
+        mesh = trimesh.Trimesh(v, part.faces, process=False, validate=False, visual=visual, metadata=dict(extras))
         scene.add_geometry(mesh, geom_name=part.name, node_name=part.name,
                            metadata=dict(extras) if with_extras else None)
     return scene
@@ -91,7 +144,7 @@ def _load(stage_path: Path) -> list[Part]:
 class GlbExporter:
     name = "glb"
     suffix = ".glb"
-    description = "binary glTF, Y-up meters; one node per USD mesh prim, semantic class in extras"
+    description = "binary glTF, Y-up meters; one node per USD mesh prim with its material and textures, class in extras"
 
     def export(self, stage_path: Path, out_path: Path) -> Path:
         stage_path, out_path = Path(stage_path), Path(out_path)
@@ -109,7 +162,7 @@ class GlbExporter:
 class ObjExporter:
     name = "obj"
     suffix = ".obj"
-    description = "Wavefront OBJ + MTL beside it, Z-up meters; one object per USD mesh prim"
+    description = "Wavefront OBJ + MTL and diffuse textures beside it, Z-up meters; one object per USD mesh prim"
 
     def export(self, stage_path: Path, out_path: Path) -> Path:
         from trimesh.exchange.obj import export_obj
@@ -120,18 +173,23 @@ class ObjExporter:
         if mtl_path == out_path:
             mtl_path = out_path.with_name(out_path.name + ".mtl")
         scene = _scene(parts, None, with_extras=False)
-        text, files = export_obj(scene, include_normals=False, include_color=False, mtl_name=mtl_path.name,
-                                 return_texture=True, header=f"roadtwin export of {stage_path.name}: Z-up, meters")
+        text, files = export_obj(scene, include_normals=False, include_color=False, include_texture=True,
+                                 mtl_name=mtl_path.name, return_texture=True,
+                                 header=f"roadtwin export of {stage_path.name}: Z-up, meters")
         # trimesh writes `o <name>` per geometry; add a matching `g` for tools that group by it.
         lines = []
         for line in text.splitlines():
             lines.append(line)
             if line.startswith("o "):
                 lines.append("g " + line[2:])
-        mtl = files.get(mtl_path.name, b"")
-        with atomic_files(mtl_path, out_path) as (tmp_mtl, tmp_obj):
-            tmp_mtl.write_bytes(mtl if isinstance(mtl, bytes) else mtl.encode())
-            tmp_obj.write_text("\n".join(lines) + "\n")
+        mtl = files.pop(mtl_path.name, b"")
+        textures = {out_path.with_name(name): data for name, data in sorted(files.items())}
+        # Textures first, then the .mtl naming them, then the .obj naming the .mtl.
+        with atomic_files(*textures, mtl_path, out_path) as tmps:
+            for tmp, data in zip(tmps, textures.values()):
+                tmp.write_bytes(data if isinstance(data, bytes) else data.encode())
+            tmps[-2].write_bytes(mtl if isinstance(mtl, bytes) else mtl.encode())
+            tmps[-1].write_text("\n".join(lines) + "\n")
         return out_path
 
 

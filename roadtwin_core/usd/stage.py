@@ -1,11 +1,16 @@
-"""Small helpers every layer writer uses: metadata, kinds, labels, typed custom attributes."""
+"""Small helpers every layer writer uses: metadata, kinds, labels, typed custom attributes,
+texture coordinates (the st convention of :mod:`roadtwin_core.looks`) and safe prim names."""
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import re
+
 from pxr import Kind, Sdf, Usd, UsdGeom, UsdPhysics, UsdSemantics, Vt
+
+from ..looks.catalog import ST_TILE_M
 
 LABEL_TAXONOMY = "class"
 
@@ -83,3 +88,49 @@ def read_mesh(mesh: UsdGeom.Mesh, world: bool = True) -> tuple[np.ndarray, np.nd
             faces.append((idx[start], idx[start + k], idx[start + k + 1]))
         start += c
     return pts, np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+
+
+def safe_prim_name(name: str) -> str:
+    """A valid USD prim name from any id (``road1_lane-1.0`` -> ``road1_lane_1_0``)."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", name)
+    return name if name and not name[0].isdigit() else f"_{name}"
+
+
+def planar_st(vertices: np.ndarray) -> np.ndarray:
+    """World-planar texture coordinates: one st unit per ``ST_TILE_M`` metres of x and y."""
+    return np.asarray(vertices, dtype=np.float64)[:, :2] / ST_TILE_M
+
+
+def lane_st(vertices: np.ndarray, centerline: np.ndarray) -> np.ndarray:
+    """Lane-aligned texture coordinates: u = arc length along the centreline / ``ST_TILE_M``,
+    v = 0.5 + signed lateral offset (left of travel positive) / ``ST_TILE_M``.
+
+    Each point takes its nearest centreline piece; beyond the ends the first and last pieces are
+    extended, so u keeps growing linearly (negative before the start)."""
+    xy = np.asarray(vertices, dtype=np.float64)[:, :2]
+    c = np.asarray(centerline, dtype=np.float64).reshape(-1, 2)
+    d = np.diff(c, axis=0)
+    length = np.linalg.norm(d, axis=1)
+    keep = length > 1e-9
+    if not keep.any():
+        return planar_st(vertices)
+    a, d, length = c[:-1][keep], d[keep], length[keep]
+    station = np.concatenate([[0.0], np.cumsum(length)[:-1]])
+    rel = xy[:, None, :] - a[None]                                        # (P,S,2)
+    t = (rel * d[None]).sum(-1) / length[None] ** 2
+    lo = np.zeros(len(a)); lo[0] = -np.inf
+    hi = np.ones(len(a)); hi[-1] = np.inf
+    t = np.clip(t, lo[None], hi[None])
+    dist = ((rel - t[..., None] * d[None]) ** 2).sum(-1)
+    k = dist.argmin(axis=1)
+    rows = np.arange(len(xy))
+    s = station[k] + t[rows, k] * length[k]
+    lateral = (d[k, 0] * rel[rows, k, 1] - d[k, 1] * rel[rows, k, 0]) / length[k]
+    return np.column_stack([s / ST_TILE_M, 0.5 + lateral / ST_TILE_M])
+
+
+def write_st(mesh: UsdGeom.Mesh, st: np.ndarray) -> None:
+    """``primvars:st`` (texCoord2f[], vertex interpolation), what UsdPreviewSurface readers use."""
+    pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                          UsdGeom.Tokens.vertex)
+    pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(st, dtype=np.float32)))

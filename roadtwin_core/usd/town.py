@@ -1,23 +1,36 @@
 """Write a composed town: root ``town.usda`` sublayering one layer per concern.
 
-Strongest first: semantics, physics, defects, roads, then the untouched input layout (copied
-into ``layout/``). Roads *override* the layout's planar segment meshes with the merged, elevated
+Strongest first: looks, semantics, physics, markings, defects, roads, then the untouched input
+layout (copied into ``layout/``). Roads *override* the layout's planar segment meshes with the merged, elevated
 road surface, so muting ``roads.usda`` shows the input again. Defect instances carry their baked
 geometry (each one drapes over a different piece of road, so it cannot be shared). The physics
-layer holds one static triangle-mesh collider per segment with the defects baked in.
+layer holds one static triangle-mesh collider per segment with the defects baked in. Lane
+markings are draped paint meshes under ``/<root>/MarkingMeshes``: ``/<root>/Markings`` already
+holds the layout's marking curves (guide-purpose BasisCurves, the input data), and a mesh over
+the same path would inherit the curve's attributes and purpose. The looks layer holds the materials and binds
+them (see ``looks.py``). Every rendered mesh carries ``primvars:st`` (the st convention of
+:mod:`roadtwin_core.looks`): lane-aligned on driving segments with a centreline, world-planar
+elsewhere.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdPhysics
 
-from ..model import MergedSegment, Placement, TownLayout
-from .stage import apply_labels, new_stage, set_attrs, set_kind, write_mesh
+from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_material, kind_material, marking_material
+from ..markings import MarkingMesh
+from ..model import MergedSegment, Placement, RoadSegment, TownLayout
+from .looks import write_looks
+from .stage import (apply_labels, lane_st, new_stage, planar_st, safe_prim_name, set_attrs, set_kind, write_mesh,
+                    write_st)
 
-LAYERS = ("semantics", "physics", "defects", "roads")
+LAYERS = ("looks", "semantics", "physics", "markings", "defects", "roads")
+VARIANT_KINDS = ("driving", "junction")  # the surfaces the root's roadMaterial variant set switches
+DEFAULT_ROAD_MATERIAL = "asphalt"
+MARKING_MESHES = "MarkingMeshes"  # group of the draped paint meshes (the layout's curves are in "Markings")
 
 
 @dataclass
@@ -29,6 +42,59 @@ class TownParts:
     placements: list[Placement]
     library_files: dict[str, str]         # model name -> asset path relative to town.usda
     compose_info: dict
+    markings: list[MarkingMesh] = field(default_factory=list)
+    materials: dict[str, MaterialSpec] = field(default_factory=dict)  # name -> spec (textures/ beside town.usda)
+
+
+def segment_st(seg: RoadSegment, vertices: np.ndarray) -> np.ndarray:
+    """Lane-aligned st on driving segments with a centreline, world-planar elsewhere."""
+    if seg.kind == "driving" and seg.centerline is not None and len(seg.centerline) >= 2:
+        return lane_st(vertices, seg.centerline)
+    return planar_st(vertices)
+
+
+def marking_prim_names(markings: list[MarkingMesh]) -> list[str]:
+    """Safe, unique prim names for the markings (ids may repeat or clash once sanitised)."""
+    names, seen = [], set()
+    for m in markings:
+        base = name = safe_prim_name(m.id)
+        k = 1
+        while name in seen:
+            name, k = f"{base}_{k}", k + 1
+        seen.add(name)
+        names.append(name)
+    return names
+
+
+def road_variants(segments: list[RoadSegment]) -> dict[str, list[tuple[str, str]]]:
+    """``roadMaterial`` variant -> bindings of the driving and junction surfaces. The default
+    variant keeps the catalog's per-kind look (worn lanes, newer junctions); the others pave
+    both with the variant's material."""
+    out = {}
+    for variant, material in ROAD_MATERIAL_VARIANTS.items():
+        out[variant] = [(seg.prim_path, kind_material(seg.kind) if variant == DEFAULT_ROAD_MATERIAL else material)
+                        for seg in segments if seg.kind in VARIANT_KINDS]
+    return out
+
+
+def _write_markings(path: Path, name: str, doc: str, markings: list[MarkingMesh], prim_names: list[str]) -> None:
+    """``/<root>/MarkingMeshes/<id>`` meshes (kind component under a group), type and colour as
+    token attributes (as on the layout's curves)."""
+    root = f"/{name}"
+    stage = new_stage(path, name, doc + ": lane markings draped on the road")
+    _over(stage, root)
+    if markings:
+        set_kind(UsdGeom.Xform.Define(stage, f"{root}/{MARKING_MESHES}").GetPrim(), "group")
+    for prim_name, m in zip(prim_names, markings):
+        mesh = UsdGeom.Mesh.Define(stage, f"{root}/{MARKING_MESHES}/{prim_name}")
+        write_mesh(mesh, m.vertices, m.faces)
+        write_st(mesh, planar_st(m.vertices))
+        prim = mesh.GetPrim()
+        set_kind(prim, "component")
+        for key, value in (("type", m.marking_type), ("color", m.color)):
+            prim.CreateAttribute(f"roadtwin:marking:{key}", Sdf.ValueTypeNames.Token, custom=True).Set(value)
+        prim.CreateAttribute("roadtwin:marking:id", Sdf.ValueTypeNames.String, custom=True).Set(m.id)
+    stage.GetRootLayer().Save()
 
 
 def _over(stage: Usd.Stage, path: str) -> Usd.Prim:
@@ -47,6 +113,7 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
         v, f = m.part(-1)
         mesh = UsdGeom.Mesh(_over(roads, seg.prim_path))
         write_mesh(mesh, v, f)
+        write_st(mesh, segment_st(seg, v))
     roads.GetRootLayer().Save()
 
     defects = new_stage(outdir / "layers/defects.usda", lay.name, doc + ": defect instances")
@@ -69,8 +136,13 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
         prim.CreateAttribute("roadtwin:source", Sdf.ValueTypeNames.Asset, custom=True).Set(
             Sdf.AssetPath("../" + parts.library_files[p.model.name].removeprefix("./")))  # relative to layers/
         for seg_id, v, f in pieces.get(i, []):
-            write_mesh(UsdGeom.Mesh.Define(defects, f"{root}/Defects/{p.instance_id}/{seg_id}"), v, f)
+            mesh = UsdGeom.Mesh.Define(defects, f"{root}/Defects/{p.instance_id}/{seg_id}")
+            write_mesh(mesh, v, f)
+            write_st(mesh, planar_st(v))
     defects.GetRootLayer().Save()
+
+    marking_names = marking_prim_names(parts.markings)
+    _write_markings(outdir / "layers/markings.usda", lay.name, doc, parts.markings, marking_names)
 
     physics = new_stage(outdir / "layers/physics.usda", lay.name, doc + ": static road collision")
     _over(physics, root)
@@ -94,7 +166,19 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
         apply_labels(_over(sem, f"{root}/Collision/{seg.id}"), ["road", "collision"])
     for p in parts.placements:
         apply_labels(_over(sem, f"{root}/Defects/{p.instance_id}"), ["road_defect", p.model.defect_type])
+    for name, m in zip(marking_names, parts.markings):
+        apply_labels(_over(sem, f"{root}/{MARKING_MESHES}/{name}"), ["lane_marking", m.marking_type])
     sem.GetRootLayer().Save()
+
+    looks = new_stage(outdir / "layers/looks.usda", lay.name, doc + ": materials and their bindings")
+    _over(looks, root)
+    bindings = [(seg.prim_path, kind_material(seg.kind)) for seg in lay.segments if seg.kind not in VARIANT_KINDS]
+    for i, p in enumerate(parts.placements):
+        material = defect_material(p.model.defect_type)
+        bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
+    bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
+    write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
+    looks.GetRootLayer().Save()
 
     town_path = outdir / "town.usda"
     town = new_stage(town_path, lay.name, doc)

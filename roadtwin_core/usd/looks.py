@@ -1,0 +1,114 @@
+"""The looks layer: ``UsdPreviewSurface`` materials over the textures written next to the stage,
+bound to road segments, defect pieces and markings, plus the root's ``roadMaterial`` variant set.
+
+Every material has the same small network, which roadtwin's renderer, Blender, usdview and
+Isaac Sim all read (so keep it exactly so)::
+
+    /<root>/Looks/<name>                  Material, outputs:surface <- PreviewSurface.outputs:surface
+        PreviewSurface  UsdPreviewSurface  diffuseColor <- Diffuse.rgb, roughness <- Roughness.r
+                                           (or a constant), normal <- Normal.rgb, metallic constant
+        TexCoord        UsdPrimvarReader_float2, varname "st" (string)
+        Diffuse         UsdUVTexture, sRGB, repeat, st <- TexCoord.result
+        Roughness       UsdUVTexture, raw                      (only with a roughness map)
+        Normal          UsdUVTexture, raw, scale (2,2,2,1), bias (-1,-1,-1,0)  (only with a normal map)
+
+Texture paths are relative to this layer (``@../textures/<file>@``), so the output folder can
+move. Bindings are overs (``MaterialBindingAPI``) on prims other layers define. Driving and
+junction surfaces are bound only inside the ``roadMaterial`` variants: a direct opinion in this
+layer would be stronger than any variant (LIVRPS) and the switch would do nothing.
+"""
+from __future__ import annotations
+
+
+from pxr import Sdf, Usd, UsdGeom, UsdShade
+
+from ..errors import RoadtwinError
+from ..looks.catalog import MaterialSpec
+
+ROAD_MATERIAL_SET = "roadMaterial"
+TEXTURE_DIR = "../textures"  # relative to layers/looks.usda
+
+Binding = tuple[str, str]  # (prim path, material name)
+
+
+def material_path(root: str, name: str) -> str:
+    return f"{root}/Looks/{name}"
+
+
+def _texture(stage: Usd.Stage, path: str, file: str, color_space: str, st: UsdShade.Shader) -> UsdShade.Shader:
+    tex = UsdShade.Shader.Define(stage, path)
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"{TEXTURE_DIR}/{file}"))
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(color_space)
+    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
+    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st.ConnectableAPI(), "result")
+    return tex
+
+
+def define_material(stage: Usd.Stage, root: str, spec: MaterialSpec) -> UsdShade.Material:
+    """One material with the network of the module docstring."""
+    path = material_path(root, spec.name)
+    mat = UsdShade.Material.Define(stage, path)
+    if spec.doc:
+        mat.GetPrim().SetDocumentation(spec.doc)
+    surface = UsdShade.Shader.Define(stage, f"{path}/PreviewSurface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    mat.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    reader = UsdShade.Shader.Define(stage, f"{path}/TexCoord")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    # string, not token: the Sdr definition of UsdPrimvarReader says string since USD 21.11 and
+    # pxr.UsdValidation's ShaderSdrCompliance rejects a token (Blender and usdview read both).
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+
+    diffuse = _texture(stage, f"{path}/Diffuse", spec.diffuse, "sRGB", reader)
+    diffuse.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(diffuse.ConnectableAPI(), "rgb")
+    roughness = surface.CreateInput("roughness", Sdf.ValueTypeNames.Float)
+    if spec.roughness:
+        tex = _texture(stage, f"{path}/Roughness", spec.roughness, "raw", reader)
+        tex.CreateOutput("r", Sdf.ValueTypeNames.Float)
+        roughness.ConnectToSource(tex.ConnectableAPI(), "r")
+    else:
+        roughness.Set(float(spec.roughness_value))
+    if spec.normal:
+        tex = _texture(stage, f"{path}/Normal", spec.normal, "raw", reader)
+        tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((2.0, 2.0, 2.0, 1.0))
+        tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set((-1.0, -1.0, -1.0, 0.0))
+        tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        surface.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(tex.ConnectableAPI(), "rgb")
+    surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(float(spec.metallic))
+    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+    return mat
+
+
+def _bind(stage: Usd.Stage, root: str, bindings: list[Binding], known: set[str]) -> None:
+    for prim_path, name in bindings:
+        if name not in known:
+            raise RoadtwinError(f"material {name!r} bound to {prim_path} was not written by the texture generator "
+                                f"(known: {', '.join(sorted(known))})")
+        prim = stage.OverridePrim(Sdf.Path(prim_path))
+        UsdShade.MaterialBindingAPI.Apply(prim).Bind(UsdShade.Material(stage.GetPrimAtPath(material_path(root, name))))
+
+
+def write_looks(stage: Usd.Stage, root: str, specs: dict[str, MaterialSpec], bindings: list[Binding],
+                variants: dict[str, list[Binding]], default_variant: str) -> None:
+    """Materials (sorted by name), direct bindings, then the ``roadMaterial`` variant set on the
+    root prim with its own bindings per variant (``default_variant`` selected)."""
+    UsdGeom.Scope.Define(stage, f"{root}/Looks")
+    for name in sorted(specs):
+        define_material(stage, root, specs[name])
+    known = set(specs)
+    _bind(stage, root, bindings, known)
+    if variants:
+        vset = stage.GetPrimAtPath(root).GetVariantSets().AddVariantSet(ROAD_MATERIAL_SET)
+        for variant in variants:
+            vset.AddVariant(variant)
+            vset.SetVariantSelection(variant)
+            with vset.GetVariantEditContext():
+                _bind(stage, root, variants[variant], known)
+        vset.SetVariantSelection(default_variant)
+
+
+__all__ = ["ROAD_MATERIAL_SET", "define_material", "material_path", "write_looks"]
