@@ -67,7 +67,8 @@ def main(stage: str, view_json: str, out_png: str, samples: int = 32) -> None:
     scene.render.filepath = out_png
     bpy.ops.render.render(write_still=True)
     mats = sorted({s.material.name for o in scene.objects if o.type == "MESH" for s in o.material_slots if s.material})
-    print(json.dumps({"meshes": sum(o.type == "MESH" for o in scene.objects), "materials": mats}))
+    print(json.dumps({"blender": bpy.app.version_string, "meshes": sum(o.type == "MESH" for o in scene.objects),
+                      "materials": mats}))
 
 
 if __name__ == "__main__":
