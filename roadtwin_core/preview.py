@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -177,7 +178,9 @@ def render_view(town_stage: Path, mesh, pm) -> tuple[np.ndarray | None, str, Pre
         if pose is not None and len(pose) >= 2:
             centres.append(pose[:2])
     spot = choose_spot(lanes, np.asarray(centres, float).reshape(-1, 2))
-    ground = GroundSampler(mesh)
+    # the road under the camera only: a sampler over the whole town costs seconds and GBs on Town01
+    near = (np.abs(mesh.vertices[mesh.faces][:, :, :2] - spot.xy).max(axis=(1, 2)) < 10.0)
+    ground = GroundSampler(SimpleNamespace(vertices=mesh.vertices, faces=mesh.faces[near]))
     z = vehicle_height(ground, spot.xy[None], np.array([spot.heading]))[0]
     if not np.isfinite(z):
         return None, f"no perspective view: no road under lane {spot.lane} at the chosen spot", spot, None
