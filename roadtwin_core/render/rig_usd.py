@@ -161,9 +161,10 @@ def add_rig_cameras(stage_path: str | Path, rigs: Sequence[str], at_s: float = 2
 
 def read_stage_cameras(stage_path: str | Path, size: tuple[int, int] | None = None) -> list[StageCamera]:
     """Every ``UsdGeom.Camera`` of a stage (traversal order) as pinhole cameras. Image size:
-    ``roadtwin:rig:widthPx/heightPx`` when authored, else ``size`` (a camera without either is
-    an error naming it); fx, fy from focal length over aperture (same units, so metersPerUnit
-    cancels), principal point at the image centre plus the aperture offsets."""
+    ``size`` when given (the lens is kept: fx scales with the width), else
+    ``roadtwin:rig:widthPx/heightPx`` (a camera without either is an error naming it); fx, fy
+    from focal length over aperture (same units, so metersPerUnit cancels), principal point at
+    the image centre plus the aperture offsets."""
     from pxr import Usd, UsdGeom
 
     stage = Usd.Stage.Open(str(stage_path))
@@ -177,10 +178,10 @@ def read_stage_cameras(stage_path: str | Path, size: tuple[int, int] | None = No
         cam = UsdGeom.Camera(prim)
         where = f"{stage_path}: camera {prim.GetPath()}"
         w_attr, h_attr = prim.GetAttribute("roadtwin:rig:widthPx"), prim.GetAttribute("roadtwin:rig:heightPx")
-        if w_attr and w_attr.HasValue() and h_attr and h_attr.HasValue():
-            width, height = int(w_attr.Get()), int(h_attr.Get())
-        elif size is not None:
+        if size is not None:
             width, height = size
+        elif w_attr and w_attr.HasValue() and h_attr and h_attr.HasValue():
+            width, height = int(w_attr.Get()), int(h_attr.Get())
         else:
             raise RoadtwinError(f"{where} has no roadtwin:rig:widthPx/heightPx; give --size")
         if str(cam.GetProjectionAttr().Get()) != "perspective":
@@ -192,6 +193,14 @@ def read_stage_cameras(stage_path: str | Path, size: tuple[int, int] | None = No
         fx, fy = focal / hap * width, focal / vap * height
         cx = (width - 1) / 2.0 + float(cam.GetHorizontalApertureOffsetAttr().Get() or 0.0) / hap * width
         cy = (height - 1) / 2.0 - float(cam.GetVerticalApertureOffsetAttr().Get() or 0.0) / vap * height
+        intr = Intrinsics(width, height, fx, fy, cx, cy)
+        hfov_attr = prim.GetAttribute("roadtwin:rig:hfovDeg")
+        if hfov_attr and hfov_attr.HasValue() and cx == (width - 1) / 2.0 and cy == (height - 1) / 2.0:
+            # a roadtwin rig: the lens is stored as float32 (USD's camera schema); the double
+            # field of view beside it gives the preset's intrinsics exactly when they agree
+            exact = Intrinsics.from_fov(width, height, float(hfov_attr.Get()))
+            if abs(exact.fx / fx - 1) < 1e-5 and abs(exact.fy / fy - 1) < 1e-5:
+                intr = exact
         xf = np.array(cam.ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64).T
         xf[:3, 3] *= mpu
         scale = np.linalg.norm(xf[:3, :3], axis=0)
@@ -202,6 +211,5 @@ def read_stage_cameras(stage_path: str | Path, size: tuple[int, int] | None = No
         rig = str(name_attr.Get()) if name_attr and name_attr.HasValue() else prim.GetName()
         base = prim.GetAttribute("roadtwin:rig:baselineM")
         baseline = float(base.Get()) if base and base.HasValue() else None
-        out.append(StageCamera(str(prim.GetPath()), rig, Intrinsics(width, height, fx, fy, cx, cy), xf @ CV_TO_USD,
-                               baseline))
+        out.append(StageCamera(str(prim.GetPath()), rig, intr, xf @ CV_TO_USD, baseline))
     return out
