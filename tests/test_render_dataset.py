@@ -393,3 +393,21 @@ def test_bad_rig_through_the_real_command_is_exit_2_and_one_line(road, tmp_path)
     assert res.returncode == 2
     lines = [l for l in res.stderr.splitlines() if l.strip() and "Warp" not in l]
     assert len(lines) == 1 and "drone" in lines[0]
+
+
+def test_crack_growth_keeps_pothole_over_crack_over_lane():
+    from roadtwin_core.render.classmap import load_class_map, parse_class_map
+
+    m = load_class_map("road_defects_br")
+    assert dict(m.dilate_px) == {"crack": 1}
+    lab = np.array([[0, 1, 1, 1, 255],
+                    [0, 2, 2, 3, 255],
+                    [1, 1, 1, 3, 1]], np.uint8)
+    # the crack grows by one pixel (4-neighbours: cv2's 3x3 ellipse) over background and lane,
+    # never over the pothole or ignore
+    expected = np.array([[0, 2, 2, 1, 255],
+                         [2, 2, 2, 3, 255],
+                         [1, 2, 2, 3, 1]], np.uint8)
+    np.testing.assert_array_equal(m.spread(lab), expected)
+    with pytest.raises(RoadtwinError, match=r"\[dilate_px\] crack"):
+        parse_class_map('classes = ["a", "crack"]\n[map]\ncrack = ["crack"]\n[dilate_px]\ncrack = -1\n', "f.toml")
