@@ -148,6 +148,9 @@ def import_layout(
 from .cli_render import render as _render  # noqa: E402  (subcommands live in their own modules)
 
 app.command("render")(_render)
+from .cli_render import rig_app as _rig_app  # noqa: E402
+
+app.add_typer(_rig_app, name="rig")
 
 from .cli_plan import plan as _plan  # noqa: E402
 

@@ -1,7 +1,9 @@
 """Where per-segment work runs: in-process, a local process pool, or a Ray cluster.
 
 Every executor maps a pure function over items and returns results *in item order*, so the
-output bytes do not depend on the executor or on scheduling. Large shared inputs (the surface
+output bytes do not depend on the executor or on scheduling. ``imap`` yields them in item order
+as they arrive, so a consumer (a dataset writer) keeps only what it has not written yet, not
+every result of a 100,000-frame render. Large shared inputs (the surface
 model, the merger, the rules) travel once per worker as a *context*, not once per task:
 forked workers inherit it, Ray workers get it through the object store.
 """
@@ -10,7 +12,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 from .errors import RoadtwinError
 
@@ -28,12 +30,14 @@ class SerialExecutor:
     name = "serial"
 
     def map(self, fn: Task, context: Any, items: Sequence[Any], progress: Progress | None = None) -> list[Any]:
-        out = []
+        return list(self.imap(fn, context, items, progress))
+
+    def imap(self, fn: Task, context: Any, items: Sequence[Any], progress: Progress | None = None) -> Iterator[Any]:
         for k, item in enumerate(items):
-            out.append(fn(context, item))
+            result = fn(context, item)
             if progress:
                 progress(k + 1, len(items))
-        return out
+            yield result
 
 
 class LocalExecutor:
@@ -63,6 +67,31 @@ class LocalExecutor:
             _CONTEXT = None
         return results
 
+    def imap(self, fn: Task, context: Any, items: Sequence[Any], progress: Progress | None = None) -> Iterator[Any]:
+        """Results in item order, each as soon as it and every earlier one are done."""
+        if self.workers <= 1 or len(items) <= 1:
+            yield from SerialExecutor().imap(fn, context, items, progress)
+            return
+        global _CONTEXT
+        _CONTEXT = context
+        try:
+            ctx = multiprocessing.get_context("fork")
+            with ProcessPoolExecutor(min(self.workers, len(items)), mp_context=ctx) as pool:
+                futures = [pool.submit(_run_with_global_context, fn, k, item) for k, item in enumerate(items)]
+                for k, fut in enumerate(futures):
+                    try:
+                        _, value = fut.result()
+                    except BaseException:
+                        for f in futures[k:]:
+                            f.cancel()
+                        raise
+                    futures[k] = None      # drop the result once handed over
+                    if progress:
+                        progress(k + 1, len(items))
+                    yield value
+        finally:
+            _CONTEXT = None
+
 
 class RayExecutor:
     """Ray tasks; connects to ``address`` or starts a local cluster when none is given."""
@@ -73,7 +102,24 @@ class RayExecutor:
         self.address = address
         self.num_cpus = num_cpus
 
-    def map(self, fn: Task, context: Any, items: Sequence[Any], progress: Progress | None = None) -> list[Any]:
+    def imap(self, fn: Task, context: Any, items: Sequence[Any], progress: Progress | None = None) -> Iterator[Any]:
+        """Results in item order (``ray.get`` of each task's reference in turn)."""
+        ray, started = self._connect()
+        try:
+            ctx_ref = ray.put(context)
+            remote = ray.remote(_ray_task)
+            refs = [remote.remote(fn, ctx_ref, item) for item in items]
+            for k in range(len(refs)):
+                value = ray.get(refs[k])
+                refs[k] = None
+                if progress:
+                    progress(k + 1, len(items))
+                yield value
+        finally:
+            if started:
+                ray.shutdown()
+
+    def _connect(self):
         try:
             import ray
         except ImportError:
@@ -91,6 +137,10 @@ class RayExecutor:
             except Exception as exc:
                 raise RoadtwinError(f"executor ray: cannot reach cluster {self.address or 'local'}: {exc}") from None
             started = True
+        return ray, started
+
+    def map(self, fn: Task, context: Any, items: Sequence[Any], progress: Progress | None = None) -> list[Any]:
+        ray, started = self._connect()
         try:
             ctx_ref = ray.put(context)
             remote = ray.remote(_ray_task)

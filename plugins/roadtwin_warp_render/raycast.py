@@ -80,6 +80,8 @@ class Textures:
     mat_rough: wp.array(dtype=wp.int32)
     mat_normal: wp.array(dtype=wp.int32)
     mat_metallic: wp.array(dtype=float)
+    mat_remap: wp.array(dtype=wp.int32)     # per-frame look: material id -> id whose maps are sampled
+    mat_scale: wp.array(dtype=wp.vec3)      # per-frame look: diffuse multiplier, by the face's own id
 
 
 @wp.struct
@@ -284,8 +286,9 @@ def shade_kernel(mesh: wp.uint64, F: Faces, tex: Textures, cam: Cam, L: Light,
     # (isotropic filtering: a little blur on grazing roads instead of shimmer)
     cosi = wp.max(wp.abs(wp.dot(n, d)), 0.02)
     fp = (t / cam.fx) / wp.sqrt(cosi) * F.st_per_m[f]
-    m = F.mat[f]
-    albedo = sample_map(tex, tex.mat_diffuse[m], uv[0], uv[1], fp)
+    m0 = F.mat[f]
+    m = tex.mat_remap[m0]
+    albedo = wp.cw_mul(sample_map(tex, tex.mat_diffuse[m], uv[0], uv[1], fp), tex.mat_scale[m0])
     rough = wp.clamp(sample_map(tex, tex.mat_rough[m], uv[0], uv[1], fp)[0], 0.02, 1.0)
     metallic = tex.mat_metallic[m]
     ns = n
@@ -593,7 +596,19 @@ def build_textures(materials: list[dict], device) -> tuple[Textures, int]:
     tex.map_first, tex.map_levels, tex.map_wrap_s, tex.map_wrap_t = ia(first), ia(nlev), ia(wrap_s), ia(wrap_t)
     tex.mat_diffuse, tex.mat_rough, tex.mat_normal = ia(md), ia(mr), ia(mn)
     tex.mat_metallic = wp.array(np.asarray(mm, np.float32), dtype=float, device=device)
+    set_material_look(tex, np.arange(len(materials)), np.ones((len(materials), 3)), device)
     return tex, total
+
+
+def set_material_look(tex: Textures, remap: np.ndarray, scale: np.ndarray, device) -> None:
+    """Per-frame material remap (id -> id sampled) and diffuse multipliers (n_materials, 3)."""
+    remap = np.asarray(remap, np.int32).reshape(-1)
+    scale = np.asarray(scale, np.float32).reshape(-1, 3)
+    n = tex.mat_diffuse.shape[0]
+    if len(remap) != n or len(scale) != n or remap.min() < 0 or remap.max() >= n:
+        raise ValueError(f"material look: expected {n} remap entries in range and {n} scales")
+    tex.mat_remap = wp.array(remap, dtype=wp.int32, device=device)
+    tex.mat_scale = wp.array(scale, dtype=wp.vec3, device=device)
 
 
 def face_st_frames(vertices: np.ndarray, faces: np.ndarray, face_uv: np.ndarray):

@@ -117,9 +117,11 @@ class WarpRenderer:
                 raise RoadtwinError(f"camera {k} at ({p}) is inside geometry: it sees only the backs of surfaces")
 
     # ------------------------------------------------------------------ render
-    def render(self, scene, cameras: Iterable, params: RenderParams | None = None) -> Iterator[Frame]:
+    def render(self, scene, cameras: Iterable, params: RenderParams | None = None, look=None) -> Iterator[Frame]:
         """Frames for ``cameras`` (Camera or StereoCamera), in order; all cameras are checked
-        before the first frame is rendered."""
+        before the first frame is rendered. ``look``: a per-frame material look
+        (:class:`roadtwin_core.render.scene_look.MaterialLook`: material remap, diffuse scale,
+        sky tint) for these frames; None = the stage's materials as they are."""
         params = check_params(params or RenderParams(), "renderer warp")
         if params.weather not in WEATHERS:
             raise RoadtwinError(f"unknown weather {params.weather!r} (known: {', '.join(WEATHERS)})")
@@ -127,13 +129,24 @@ class WarpRenderer:
         cameras = list(cameras)
         self.check_cameras(prepared, cameras, params)
         rc = _rc()
-        light = rc.make_light(rc.light_preset(params.weather, sun_elevation_deg=params.sun_elevation_deg,
-                                              sun_azimuth_deg=params.sun_azimuth_deg,
-                                              fog_density=params.fog_density, wetness=params.wetness,
-                                              shadows=params.shadows, seed=params.seed))
-        return self._frames(prepared, cameras, params, light)
+        spec = rc.light_preset(params.weather, sun_elevation_deg=params.sun_elevation_deg,
+                               sun_azimuth_deg=params.sun_azimuth_deg, fog_density=params.fog_density,
+                               wetness=params.wetness, shadows=params.shadows, seed=params.seed)
+        n = len(prepared.mesh.materials)
+        if look is not None:
+            tint = np.asarray(look.sky_tint, np.float64)
+            spec.sky_zenith = tuple(np.asarray(spec.sky_zenith) * tint)
+            spec.sky_horizon = tuple(np.asarray(spec.sky_horizon) * tint)
+            remap, scale = look.remap, look.albedo_scale
+        else:
+            remap, scale = np.arange(n), np.ones((n, 3))
+        return self._frames(prepared, cameras, params, rc.make_light(spec), (remap, scale))
 
-    def _frames(self, prepared, cameras, params, light) -> Iterator[Frame]:
+    def _frames(self, prepared, cameras, params, light, material_look) -> Iterator[Frame]:
+        try:
+            _rc().set_material_look(prepared.rs.textures, *material_look, prepared.rs.device)
+        except ValueError as exc:
+            raise RoadtwinError(f"renderer warp: {exc}") from None
         for k, cam in enumerate(cameras):
             stereo = isinstance(cam, StereoCamera)
             left = cam.left if stereo else cam

@@ -11,9 +11,9 @@ and nothing else, so frames rendered on different workers or in another order co
 
 * ``RenderParams`` the renderer understands today: sun elevation and azimuth, weather (mostly
   clear, some wet), wetness, haze (fog density);
-* :class:`SceneLook`: choices the looks/material work consumes once it lands (sky tint, road
-  wear and colour tint, wet patches, shoulder and verge surfaces); carried in frame metadata
-  until a renderer reads them;
+* :class:`SceneLook`: sky tint, road wear and colour tint, shoulder and verge surfaces (catalog
+  material names), applied by the renderer through :mod:`.scene_look`; wet patches are drawn
+  and recorded but not rendered yet;
 * :class:`ImageEffects` applied to the rendered *linear* RGB by :func:`apply_sensor`, in the
   order light goes through a camera: motion blur (integration over the exposure while the car
   moves) -> vignetting (optics) -> exposure -> photon (Poisson) + read (Gaussian) noise on the
@@ -58,8 +58,10 @@ class Ranges:
     sky_tint: tuple[float, float] = (-0.08, 0.08)
     road_wear: tuple[float, float] = (0.0, 1.0)
     road_tint: tuple[float, float] = (-0.06, 0.06)
-    shoulder_surfaces: tuple[str, ...] = ("asphalt", "asphalt_worn", "gravel")
-    verge_surfaces: tuple[str, ...] = ("grass", "grass", "dry_grass", "gravel", "dirt")
+    # catalog material names (roadtwin_core.looks): the paved shoulder twice as often as the others;
+    # verges mostly grass, some gravel, some red lateritic soil (Brazilian roadsides)
+    shoulder_surfaces: tuple[str, ...] = ("shoulder", "shoulder", "asphalt_worn", "gravel")
+    verge_surfaces: tuple[str, ...] = ("grass", "grass", "gravel", "soil")
 
     def check(self) -> "Ranges":
         lo, hi = self.jpeg_quality
@@ -78,13 +80,13 @@ class Ranges:
 
 @dataclass(frozen=True)
 class SceneLook:
-    """Appearance choices for the scene's materials (consumed by the looks/renderer work)."""
+    """Appearance choices for the scene's materials (applied through :mod:`.scene_look`)."""
 
     sky_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     road_wear: float = 0.0
     road_tint: tuple[float, float, float] = (1.0, 1.0, 1.0)
     wet_patch_coverage: float = 0.0
-    shoulder_surface: str = "asphalt"
+    shoulder_surface: str = "shoulder"
     verge_surface: str = "grass"
 
 

@@ -9,6 +9,7 @@ One output directory (the CLI builds it in a temporary directory and renames it 
     kitti/training/disp_noc_0/000000_10.png             same, occluded pixels set to 0
     kitti/training/calib_cam_to_cam/000000.txt          P_rect_02 / P_rect_03 (3x4)
     mmseg/img_dir/train/000000.png, mmseg/ann_dir/train/000000.png   uint8 class ids, 255 ignore
+                                      (images are .jpg when a sensor model wrote JPEG bytes)
     coco/annotations/instances_train.json               COCO instances, RLE masks, file_name
                                                         relative to the output directory
     instance/000000.png               uint16 instance ids (0 = none; ids in meta.json "instances")
@@ -140,7 +141,7 @@ def rle_decode(rle: dict) -> np.ndarray:
 
 
 def _palette(n: int, names: Sequence[str]) -> np.ndarray:
-    fixed = {"background": (70, 130, 180), "driving": (128, 64, 128), "junction": (160, 120, 160),
+    fixed = {"background": (70, 130, 180), "driving": (128, 64, 128), "ego_lane": (128, 64, 128), "junction": (160, 120, 160),
              "sidewalk": (244, 35, 232), "shoulder": (152, 251, 152), "pothole": (220, 20, 60),
              "crack": (255, 200, 0), "depression": (0, 0, 230), "bump": (0, 220, 220), "rut": (255, 120, 0),
              "manhole": (110, 110, 110), "lane_marking": (157, 234, 50), "patch": (170, 90, 255)}
@@ -191,6 +192,13 @@ def save_png(path: Path, array: np.ndarray) -> None:
     Image.fromarray(np.ascontiguousarray(array)).save(path, compress_level=1)  # uint16 -> 16-bit PNG
 
 
+def _write_image(path: Path, rgb8: np.ndarray, data: bytes | None) -> None:
+    if data is not None:
+        path.write_bytes(data)
+    else:
+        save_png(path, rgb8)
+
+
 def _link(src: Path, dst: Path) -> None:
     try:
         os.link(src, dst)
@@ -238,35 +246,44 @@ class DatasetWriter:
         for d in dirs:
             (self.root / d).mkdir(parents=True, exist_ok=True)
 
-    def add(self, frame: Frame) -> None:
+    def add(self, frame: Frame, rgb8: np.ndarray | None = None, image_bytes: bytes | None = None,
+            rgb8_right: np.ndarray | None = None, image_bytes_right: bytes | None = None,
+            record: dict | None = None) -> None:
+        """Write one frame. ``rgb8`` / ``image_bytes``: the image as the camera recorded it (8-bit
+        sRGB, and its JPEG bytes when a sensor model encoded it: written as ``.jpg`` unchanged);
+        default: ``frame.rgb`` tone-mapped, as PNG. ``record``: extra per-frame metadata."""
         k = len(self.frames_meta)
         stem = f"{k:06d}"
         files: dict[str, str] = {}
         root = self.root
-        if frame.rgb is None or frame.depth is None or frame.semantic is None:
+        if (frame.rgb is None and rgb8 is None) or frame.depth is None or frame.semantic is None:
             raise RoadtwinError("renderer returned a frame without rgb, depth or semantic")
-        rgb8 = to_srgb8(frame.rgb)
-        save_png(root / "images" / f"{stem}.png", rgb8)
-        files["rgb"] = f"images/{stem}.png"
+        rgb8 = to_srgb8(frame.rgb) if rgb8 is None else rgb8
+        ext = ".jpg" if image_bytes is not None else ".png"
+        _write_image(root / "images" / f"{stem}{ext}", rgb8, image_bytes)
+        files["rgb"] = f"images/{stem}{ext}"
         semantic = frame.semantic.astype(np.uint8)
         if self.baseline:
-            if frame.rgb_right is None or frame.disparity is None or frame.occluded is None:
+            if (frame.rgb_right is None and rgb8_right is None) or frame.disparity is None or frame.occluded is None:
                 raise RoadtwinError("renderer returned a stereo frame without right image or disparity")
-            save_png(root / "images_right" / f"{stem}.png", to_srgb8(frame.rgb_right))
-            files["rgb_right"] = f"images_right/{stem}.png"
+            rgb8_right = to_srgb8(frame.rgb_right) if rgb8_right is None else rgb8_right
+            ext_r = ".jpg" if image_bytes_right is not None else ".png"
+            _write_image(root / "images_right" / f"{stem}{ext_r}", rgb8_right, image_bytes_right)
+            files["rgb_right"] = f"images_right/{stem}{ext_r}"
         if "kitti" in self.formats:
             kt = root / "kitti/training"
             name = f"{stem}_10.png"
-            _link(root / files["rgb"], kt / "image_2" / name)
-            _link(root / files["rgb_right"], kt / "image_3" / name)
+            img_name = f"{stem}_10{Path(files['rgb']).suffix}"
+            _link(root / files["rgb"], kt / "image_2" / img_name)
+            _link(root / files["rgb_right"], kt / "image_3" / img_name)
             valid = frame.depth > 0
             save_png(kt / "disp_occ_0" / name, kitti_disparity_png(frame.disparity, valid))
             save_png(kt / "disp_noc_0" / name, kitti_disparity_png(frame.disparity, valid & ~frame.occluded))
             (kt / "calib_cam_to_cam" / f"{stem}.txt").write_text(self._kitti_calib())
-            files.update(kitti_left=f"kitti/training/image_2/{name}", kitti_right=f"kitti/training/image_3/{name}",
+            files.update(kitti_left=f"kitti/training/image_2/{img_name}", kitti_right=f"kitti/training/image_3/{img_name}",
                          disparity=f"kitti/training/disp_occ_0/{name}", disparity_noc=f"kitti/training/disp_noc_0/{name}")
         if "mmseg" in self.formats:
-            _link(root / files["rgb"], root / "mmseg/img_dir/train" / f"{stem}.png")
+            _link(root / files["rgb"], root / "mmseg/img_dir/train" / f"{stem}{ext}")
             save_png(root / "mmseg/ann_dir/train" / f"{stem}.png", semantic)
             files["semantic"] = f"mmseg/ann_dir/train/{stem}.png"
         visible = []
@@ -305,6 +322,7 @@ class DatasetWriter:
             entry["right_cam_to_world"] = frame.right_camera.cam_to_world.tolist()
         if "coco" in self.formats:
             entry["instances_visible"] = visible
+        entry.update(record or {})
         self.frames_meta.append(entry)
         if len(self.previews) < self.preview_frames:
             self.previews.append(self._thumbs(frame, rgb8))
@@ -321,8 +339,11 @@ class DatasetWriter:
     def _thumbs(self, frame: Frame, rgb8: np.ndarray) -> dict[str, np.ndarray]:
         valid = frame.depth > 0
         t = {"rgb": rgb8, "semantic": colorize_labels(frame.semantic, self.palette),
-             "instance": colorize_instances(frame.instance.astype(np.int64)),
-             "depth": colorize_scalar(frame.depth, valid, 1.0, 200.0), "normal": colorize_normals(frame.normal)}
+             "depth": colorize_scalar(frame.depth, valid, 1.0, 200.0)}
+        if frame.instance is not None:
+            t["instance"] = colorize_instances(frame.instance.astype(np.int64))
+        if frame.normal is not None:
+            t["normal"] = colorize_normals(frame.normal)
         if frame.disparity is not None:
             d = frame.disparity
             t["disparity"] = colorize_scalar(d, valid & ~frame.occluded, 0.5, max(float(d.max()), 1.0))
