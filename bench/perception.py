@@ -407,16 +407,29 @@ def _load_results(paths: list[Path]) -> tuple[list[dict], dict]:
         files += sorted(p.glob("results_seed*.json")) if p.is_dir() else [p]
     if not files:
         raise RoadtwinError(f"no results_seed*.json in {', '.join(map(str, paths))}")
-    results = [json.loads(f.read_text()) for f in files]
-    stems = results[0]["eval"]["stems"]
-    for f, r in zip(files, results):
+    loaded = [json.loads(f.read_text()) for f in files]
+    stems = loaded[0]["eval"]["stems"]
+    same = lambda c: {k: v for k, v in c.items() if k != "fractions"}  # noqa: E731
+    by_seed: dict[int, dict] = {}
+    for f, r in zip(files, loaded):
         if r["eval"]["stems"] != stems:
             raise RoadtwinError(f"{f}: evaluated on other frames than {files[0]} ({r['eval']['folder']})")
-        if r["config"] != results[0]["config"]:
+        if same(r["config"]) != same(loaded[0]["config"]):
             raise RoadtwinError(f"{f}: trained with another configuration than {files[0]}")
-    seeds = [r["seed"] for r in results]
-    if len(set(seeds)) != len(seeds):
-        raise RoadtwinError(f"seed given twice among {', '.join(map(str, files))}")
+        # One seed may come in several files, one per share of the real frames (a device call
+        # each); their runs merge. The same run twice (e.g. the shared zero-shot model) must agree.
+        seen = by_seed.get(r["seed"])
+        if seen is None:
+            by_seed[r["seed"]] = {**r, "runs": dict(r["runs"]), "config": dict(r["config"])}
+            continue
+        for name, run in r["runs"].items():
+            if name in seen["runs"] and name != "zero-shot" and seen["runs"][name] != run:
+                raise RoadtwinError(f"{f}: run {name!r} of seed {r['seed']} given twice with other results")
+            seen["runs"].setdefault(name, run)
+        seen["config"]["fractions"] = sorted(set(seen["config"]["fractions"]) | set(r["config"]["fractions"]),
+                                             reverse=True)
+        seen["seconds"] = seen.get("seconds", 0) + r.get("seconds", 0)
+    results = [by_seed[k] for k in sorted(by_seed)]
     grids = {}
     for f, r in zip(files, results):
         npz = f.with_name(f"preds_seed{r['seed']}.npz")

@@ -266,7 +266,8 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
         from .render.scene_look import LookTable
 
         r = Ranges()
-        mesh, table = LookTable.split(mesh, stage.parent, tuple(r.verge_surfaces) + tuple(r.shoulder_surfaces))
+        mesh, table = LookTable.split(mesh, stage.parent, tuple(r.verge_surfaces) + tuple(r.shoulder_surfaces)
+                                         + ("pothole_wet",))
     jobs = []
     for i, cam in enumerate(cams):
         record: dict = {}

@@ -58,6 +58,12 @@ def test_draws_stay_in_their_ranges_and_are_valid_render_params():
     assert {f.look.verge_surface for f in frames} == set(ranges.verge_surfaces)
     with pytest.raises(RoadtwinError, match="JPEG quality"):
         draw(1, 0, ranges=Ranges(jpeg_quality=(50, 120)))
+    # pothole interiors: brightness spans its log-uniform range, warm (red >= green >= blue), some wet
+    alb = np.array([f.look.pothole_albedo for f in frames])
+    assert alb[:, 1].min() >= 0.6 and alb[:, 1].max() <= 2.4 and alb[:, 1].max() / alb[:, 1].min() > 3
+    assert (alb[:, 0] >= alb[:, 1]).all() and (alb[:, 2] <= alb[:, 1]).all() and (alb[:, 2] >= 0.7 * alb[:, 1]).all()
+    wet_holes = np.mean([f.look.pothole_surface == "pothole_wet" for f in frames])
+    assert 0.07 < wet_holes < 0.25
 
 
 @pytest.mark.parametrize("gain,read", [(1 / 500, 0.004), (1 / 2000, 0.001)])

@@ -364,6 +364,40 @@ def test_verge_remap_and_road_tint_in_the_renderer(pm, tmp_path):
     np.testing.assert_array_equal(tinted.rgb[v], plain.rgb[v])
 
 
+def test_pothole_look_scales_only_the_pothole_interior(tmp_path):
+    """A frame's pothole albedo multiplies the pothole material (and nothing else); the wet
+    interior is swapped in when the stage's textures/ has it."""
+    from PIL import Image
+
+    from roadtwin_core.render import RenderMaterial, build_render_mesh
+    from roadtwin_core.render.randomize import SceneLook
+    from roadtwin_core.render.scene_look import LookTable
+    from roadtwin_core.usd.town_reader import TownMesh, TownScene
+
+    road = _strip("r", "driving", 0, 10, -2, 0)
+    hole = _strip("h", "driving", 2, 3, -1, -0.5)
+    grey = np.full((1, 1, 3), 0.2, np.float32)
+    mesh = build_render_mesh(TownScene("T", "t", roads=[TownMesh("r", "driving", road.vertices, road.faces),
+                                                        TownMesh("h", "driving", hole.vertices, hole.faces)]))
+    # bind the second strip to a material named like the catalog's pothole interior
+    mats = list(mesh.materials) + [RenderMaterial("/T/Looks/pothole", grey, np.full((1, 1, 1), 0.9, np.float32), None)]
+    fm = mesh.face_material.copy()
+    fm[len(road.faces):] = len(mats) - 1
+    mesh = type(mesh)(mesh.vertices, mesh.faces, mesh.face_class, mesh.face_instance, fm, mesh.face_uv, mesh.classes,
+                      mats, mesh.instances, mesh.defect_types, mesh.source)
+    (tmp_path / "textures").mkdir()
+    Image.fromarray(np.full((2, 2, 3), 10, np.uint8)).save(tmp_path / "textures/pothole_wet_diffuse.png")
+    mesh, table = LookTable.split(mesh, tmp_path, ("pothole_wet",))
+    hole_ids = np.unique(mesh.face_material[len(road.faces):])
+    road_ids = np.unique(mesh.face_material[:len(road.faces)])
+    look = table.look(SceneLook(pothole_albedo=(2.0, 1.5, 1.0)))
+    np.testing.assert_allclose(look.albedo_scale[hole_ids], [[2.0, 1.5, 1.0]] * len(hole_ids))
+    np.testing.assert_allclose(look.albedo_scale[road_ids], 1.0)
+    wet = table.look(SceneLook(pothole_surface="pothole_wet"))
+    assert (wet.remap[hole_ids] == table.variants["pothole_wet"]).all()
+    assert (wet.remap[road_ids] == road_ids).all()
+
+
 # --------------------------------------------------------------------------- bad input
 @pytest.mark.parametrize("kwargs, message", [
     ({"rig": "drone"}, "unknown rig 'drone'"),

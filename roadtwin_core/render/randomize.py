@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import io
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -62,6 +62,9 @@ class Ranges:
     # verges mostly grass, some gravel, some red lateritic soil (Brazilian roadsides)
     shoulder_surfaces: tuple[str, ...] = ("shoulder", "shoulder", "asphalt_worn", "gravel")
     verge_surfaces: tuple[str, ...] = ("grass", "grass", "gravel", "soil")
+    pothole_brightness: tuple[float, float] = (0.6, 2.4)  # log-uniform multiplier of the interior's albedo
+    pothole_warmth: tuple[float, float] = (0.0, 0.3)      # red up, blue down: exposed lateritic base course
+    pothole_wet_probability: float = 0.15                 # the glossy, darker wet interior
 
     def check(self) -> "Ranges":
         lo, hi = self.jpeg_quality
@@ -70,7 +73,7 @@ class Ranges:
         lo, hi = self.sun_elevation_deg
         if not (-10.0 <= lo <= hi <= 90.0):
             raise RoadtwinError(f"randomization: sun elevation range must lie in -10..90 degrees, got {self.sun_elevation_deg}")
-        for name in ("wet_probability", "wet_patch_probability"):
+        for name in ("wet_probability", "wet_patch_probability", "pothole_wet_probability"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise RoadtwinError(f"randomization: {name} must be in [0, 1], got {getattr(self, name)}")
         if min(self.gain) < 0 or min(self.read_noise) < 0 or min(self.exposure_time_s) <= 0:
@@ -88,6 +91,11 @@ class SceneLook:
     wet_patch_coverage: float = 0.0
     shoulder_surface: str = "shoulder"
     verge_surface: str = "grass"
+    # Potholes on real highways range from dark water-filled holes to pale exposed base course and
+    # dust: a diffuse multiplier (brightness x warm tint) and the wet interior now and then, so a
+    # network learns their shape and context rather than one shade.
+    pothole_albedo: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    pothole_surface: str = "pothole"
 
 
 @dataclass(frozen=True)
@@ -146,6 +154,13 @@ def draw(seed: int, index: int, base: RenderParams | None = None, ranges: Ranges
                      road_tint=(1.0 + road_t, 1.0, 1.0 - road_t), wet_patch_coverage=coverage if patches else 0.0,
                      shoulder_surface=str(ranges.shoulder_surfaces[int(rng.integers(len(ranges.shoulder_surfaces)))]),
                      verge_surface=str(ranges.verge_surfaces[int(rng.integers(len(ranges.verge_surfaces)))]))
+    # drawn from a stream of their own, so adding them left every earlier draw as it was
+    extra = np.random.default_rng([seed, index, _STREAM_DRAW, 1])
+    lo, hi = ranges.pothole_brightness
+    bright = math.exp(extra.uniform(math.log(lo), math.log(hi)))
+    warm = float(extra.uniform(*ranges.pothole_warmth))
+    look = replace(look, pothole_albedo=(bright * (1 + warm), bright, bright * (1 - warm)),
+                   pothole_surface="pothole_wet" if extra.random() < ranges.pothole_wet_probability else "pothole")
     temp, tint = u(ranges.wb_temperature), u(ranges.wb_tint)
     t_lo, t_hi = ranges.exposure_time_s
     t_exp = math.exp(rng.uniform(math.log(t_lo), math.log(t_hi)))

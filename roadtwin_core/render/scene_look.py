@@ -74,6 +74,8 @@ class LookTable:
         self.n = len(mesh.materials)
         self.groups = groups            # group -> material ids used by that group's faces
         self.variants = variants        # surface name -> material id
+        # the built-in pothole interior (by the catalog's material name), whatever group it is in
+        self.potholes = [i for i, m in enumerate(mesh.materials) if _short(m.name).split("#")[0] == "pothole"]
 
     @classmethod
     def split(cls, mesh: RenderMesh, stage_dir: str | Path | None = None,
@@ -131,6 +133,14 @@ class LookTable:
         scale[self.groups["road"]] = road
         scale[self.groups["shoulder"]] = tint
         applied["road_scale"] = [round(float(x), 4) for x in road]
+        pothole = getattr(scene_look, "pothole_albedo", (1.0, 1.0, 1.0))
+        surface = getattr(scene_look, "pothole_surface", "pothole")
+        if self.potholes:
+            scale[self.potholes] *= np.asarray(pothole, np.float32)
+            applied["pothole_albedo"] = [round(float(x), 4) for x in pothole]
+            if surface != "pothole" and surface in self.variants:
+                remap[self.potholes] = self.variants[surface]
+                applied["pothole"] = surface
         return MaterialLook(remap, scale, tuple(float(x) for x in scene_look.sky_tint), applied)
 
 
