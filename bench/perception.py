@@ -163,7 +163,9 @@ def augment(images_u8, labels_u8, gen, train: bool = True):
     y = labels_u8.long()
     b = x.shape[0]
     if train:
-        rnd = lambda *s: torch.rand(*s, generator=gen).to(dev)  # noqa: E731 (CPU generator: same draws on any device)
+        # the generator lives on the data's device: a CPU draw copied over each step would make
+        # the host wait for the GPU every step (no overlap of Python and kernels)
+        rnd = lambda *s: torch.rand(*s, generator=gen, device=dev)  # noqa: E731
         scale = 1.0 + 0.5 * rnd(b)
         flip = torch.where(rnd(b) < 0.5, -1.0, 1.0).to(dev)
         span = 1.0 - 1.0 / scale
@@ -182,9 +184,19 @@ def augment(images_u8, labels_u8, gen, train: bool = True):
         x = grey + (x - grey) * sat
         x = (x - x.mean((1, 2, 3), keepdim=True)) * contrast + x.mean((1, 2, 3), keepdim=True)
         x = (x * bright * gain).clamp_(0, 1)
-    mean = torch.tensor(MEAN, device=dev).view(1, 3, 1, 1)
-    std = torch.tensor(STD, device=dev).view(1, 3, 1, 1)
+    mean, std = _norm(dev)
     return (x - mean) / std, y
+
+
+_NORM: dict = {}
+
+
+def _norm(dev):
+    """MEAN/STD as device tensors, made once (a host-to-device copy per step stalls the GPU)."""
+    if str(dev) not in _NORM:
+        torch = _torch()
+        _NORM[str(dev)] = (torch.tensor(MEAN, device=dev).view(1, 3, 1, 1), torch.tensor(STD, device=dev).view(1, 3, 1, 1))
+    return _NORM[str(dev)]
 
 
 def seg_loss(logits, target):
@@ -236,14 +248,14 @@ def train_phase(model, data, steps: int, cfg: Config, seed: int, device, log=pri
     warm = min(cfg.warmup, max(1, steps // 10))
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: (s + 1) / warm if s < warm else
                                               0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * (s - warm) / max(1, steps - warm))))
-    gen = torch.Generator().manual_seed(seed)
-    order = torch.empty(0, dtype=torch.long)
+    gen = torch.Generator(device=images.device).manual_seed(seed)
+    order = torch.empty(0, dtype=torch.long, device=images.device)
     cuda = torch.device(device).type == "cuda"
     model.train()
     t0, losses = time.perf_counter(), []
     for step in range(steps):
         while len(order) < cfg.batch:
-            order = torch.cat([order, torch.randperm(n, generator=gen)])
+            order = torch.cat([order, torch.randperm(n, generator=gen, device=images.device)])
         idx, order = order[:cfg.batch], order[cfg.batch:]
         idx = idx.to(images.device)
         x, y = augment(images[idx], labels[idx], gen, train=True)

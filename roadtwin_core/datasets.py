@@ -65,6 +65,10 @@ def find_pairs(folder: str | Path) -> list[Sample]:
     folder = Path(folder)
     if not folder.is_dir():
         raise RoadtwinError(f"{folder}: no such dataset folder")
+    if (folder / "mmseg").is_dir() and not (folder / "labels").is_dir():
+        # a ``roadtwin render`` output: images/ holds RGB previews of every format, the labelled
+        # pairs are in mmseg/
+        return find_pairs(folder / "mmseg")
     if (folder / "images").is_dir() or (folder / "labels").is_dir():
         for sub in ("images", "labels"):
             if not (folder / sub).is_dir():
@@ -80,8 +84,6 @@ def find_pairs(folder: str | Path) -> list[Sample]:
             if not (i.is_dir() and a.is_dir()):
                 raise RoadtwinError(f"{folder}: split {split!r} is in only one of img_dir/ and ann_dir/")
             samples += _pair(folder, i, a, prefix=f"{split}/")
-    elif (folder / "mmseg").is_dir():
-        return find_pairs(folder / "mmseg")
     else:
         raise RoadtwinError(f"{folder}: not a dataset folder (expected images/ + labels/, "
                             f"or MMSeg img_dir/ + ann_dir/)")

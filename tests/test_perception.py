@@ -141,6 +141,9 @@ def test_dataset_folder_reads_both_layouts(tmp_path):
     _write_pair(tmp_path / "out/mmseg", "000000", lab, ".png", ("img_dir/train", "ann_dir/train"))
     pairs = find_pairs(tmp_path / "out")               # a render output root
     assert [p.stem for p in pairs] == ["train/000000", "train/000001"]
+    (tmp_path / "out/images").mkdir()                  # ... which also holds RGB previews in images/
+    Image.fromarray(np.zeros((8, 12, 3), np.uint8)).save(tmp_path / "out/images/000000.png")
+    assert [p.stem for p in find_pairs(tmp_path / "out")] == ["train/000000", "train/000001"]
     images, labels, stems = load_folder(tmp_path / "out", 4)
     assert images.shape == (2, 8, 12, 3) and np.array_equal(labels[1], lab)
     real = find_pairs(TINY / "train")
