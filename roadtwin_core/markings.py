@@ -268,11 +268,15 @@ def build_markings(markings: list[LaneMarking], segments: list[RoadSegment], mer
     holes = [Polygon(p.world_footprint()).buffer(cut_margin_m) for p in placements]
     hole_tree = shapely.STRtree(holes) if holes else None
     out = []
+    painted: list = []                     # (colour, paint) of the markings kept so far
     for m in markings:
         pieces = line_paint(m)
         if not pieces:
             continue
         paint = shapely.union_all(pieces)  # dashes stay apart; the lines of a double marking may touch
+        if _repeats(paint, m.color, painted):
+            continue
+        painted.append((m.color, paint))
         if hole_tree is not None:
             near = hole_tree.query(paint)
             if len(near):
@@ -288,6 +292,22 @@ def build_markings(markings: list[LaneMarking], segments: list[RoadSegment], mer
         z = patch.heights(xy) + lift_m
         out.append(MarkingMesh(m.id, m.marking_type, m.color, np.column_stack([xy, z]), faces))
     return out
+
+
+def _repeats(paint, color: str, painted: list, share: float = 0.5) -> bool:
+    """True when more than ``share`` of this paint lies on paint of the same colour already
+    drawn: a map that lists one line twice (CARLA's junction connecting roads come in pairs on
+    one reference line) would otherwise get two coincident meshes that flicker in every viewer."""
+    lo = np.asarray(paint.bounds)
+    for c, other in painted:
+        if c != color:
+            continue
+        b = np.asarray(other.bounds)
+        if b[0] > lo[2] or b[2] < lo[0] or b[1] > lo[3] or b[3] < lo[1]:
+            continue
+        if paint.intersection(other).area > share * paint.area:
+            return True
+    return False
 
 
 __all__ = ["MarkingMesh", "RoadPatch", "RoadSurface", "build_markings", "dash_intervals", "line_paint", "triangulate_paint",

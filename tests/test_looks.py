@@ -390,3 +390,18 @@ def test_glb_export_carries_roughness_and_normal_maps(out, tmp_path):
     assert np.array_equal(image(mat["normalTexture"]["index"])[..., :3], usd_texture("Normal", "RGB"))
     names = {m["name"] for m in gltf["materials"]}
     assert {"paint_yellow", "paint_white", "pothole", "crack"} <= names
+
+
+def test_a_line_listed_twice_is_painted_once():
+    """Maps list some lines twice (CARLA's paired junction roads on one reference line): one
+    mesh, not two coincident ones; a crossing line of the same colour and a coincident line of
+    another colour are kept."""
+    v, f = _strip(-1.0, 21.0, -3.0, 3.0)
+    seg = RoadSegment("s", "driving", v, f)
+    merged = MergedSegment("s", np.column_stack([v, np.zeros(len(v))]), f, np.full(len(f), -1))
+    a = LaneMarking("a", "solid", "white", 0.12, [[0, 0], [20, 0]])
+    twice = LaneMarking("a_again", "solid", "white", 0.12, [[20, 0], [0, 0]])        # reversed
+    cross = LaneMarking("cross", "solid", "white", 0.12, [[10, -2.5], [10, 2.5]])
+    yellow = LaneMarking("y", "solid", "yellow", 0.12, [[0, 0], [20, 0]])
+    meshes = build_markings([a, twice, cross, yellow], [seg], [merged], [])
+    assert [m.id for m in meshes] == ["a", "cross", "y"]
