@@ -181,14 +181,19 @@ def main() -> None:
     except (typer.Abort, KeyboardInterrupt):
         _safe_fail("aborted", 130)
     except Exception as exc:  # click usage errors and the like
-        import click
-
-        if isinstance(exc, click.ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
+        if _is_click_error(exc):
+            # a usage error is the user's mistake: one line naming the option, exit 2
+            message = " ".join(exc.format_message().split())
+            _safe_fail(f"{message} (see roadtwin --help)", 2)
         if os.environ.get("ROADTWIN_DEBUG"):
             raise
         _safe_fail(f"internal error: {type(exc).__name__}: {exc} (set ROADTWIN_DEBUG=1 for a traceback)", 1)
+
+
+def _is_click_error(exc: Exception) -> bool:
+    """click's own exceptions; typer >= 0.16 ships a private copy of click, so match by class
+    name along the MRO rather than by ``isinstance(exc, click.ClickException)``."""
+    return any(c.__name__ == "ClickException" for c in type(exc).__mro__) and hasattr(exc, "format_message")
 
 
 def _safe_fail(message: str, code: int = 2) -> None:

@@ -4,8 +4,8 @@ stays byte-identical and no temporary directory is left beside it.
 
 The bad layouts are small USD files built here with pxr (or written as text); a good 20 m x 7 m
 one-segment layout is composed once into OUT first (flat surface, no preview: about a second).
-Argument-parsing errors that click itself reports (e.g. ``--defects abc``) print click's usage
-block on several lines; that is click's format and not tested here.
+Argument-parsing errors that click itself reports (``--seed abc``, unknown options, missing
+arguments) follow the same rule: one line, exit 2.
 """
 from __future__ import annotations
 
@@ -157,3 +157,22 @@ def test_output_path_is_a_file(work):
     r = run_cli("compose", "good.usda", "-o", "a_file", "--no-preview", cwd=work)
     check_one_line(r, [r"a_file", "not a directory"])
     assert (work / "a_file").read_bytes() == before
+
+
+@pytest.mark.parametrize("args, names", [
+    (["compose", "stages/town.usda", "--seed", "abc", "-o", "OUT"], "'--seed'"),
+    (["compose", "stages/town.usda", "--bogus"], "--bogus"),
+    (["compose"], "'layout'"),
+    (["render", "stages/town.usda", "-o", "OUT", "--frames", "abc"], "'--frames'"),
+    (["no-such-command"], "'no-such-command'"),
+])
+def test_usage_errors_are_one_line_and_exit_2(tmp_path, args, names):
+    """click's own errors (bad values, unknown options and commands, missing arguments) are the
+    user's mistake: exit 2, one line naming the option, no 'internal error', no output."""
+    args = [str(tmp_path / "out") if a == "OUT" else (str(REPO / a) if a.startswith("stages/") else a) for a in args]
+    r = run_cli(*args, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and names in lines[0], r.stderr
+    assert "internal error" not in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()
