@@ -17,6 +17,7 @@ def atomic_output_dir(outdir: str | Path):
     if outdir.exists() and not outdir.is_dir():
         raise RoadtwinError(f"{outdir}: exists and is not a directory")
     outdir.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale(outdir)
     tmp = outdir.parent / f".{outdir.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir()
@@ -30,6 +31,35 @@ def atomic_output_dir(outdir: str | Path):
         os.replace(outdir, old)
     os.replace(tmp, outdir)
     shutil.rmtree(old, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:        # someone else's process: alive
+        return True
+    return True
+
+
+def remove_stale(outdir: Path) -> list[Path]:
+    """Remove what crashed runs (``kill -9``, power loss) left beside ``outdir``: its hidden
+    ``.NAME.tmp-PID`` / ``.NAME.old-PID`` folders whose process no longer exists. Another live
+    run's folders are left alone. A run killed between its two renames leaves the previous
+    output only in ``.old-PID``: that is put back first, so nothing the user had is lost."""
+    removed = []
+    for kind in ("old", "tmp"):
+        for path in sorted(outdir.parent.glob(f".{outdir.name}.{kind}-*")):
+            pid = path.name.rsplit("-", 1)[-1]
+            if not pid.isdigit() or int(pid) == os.getpid() or _alive(int(pid)):
+                continue
+            if kind == "old" and not outdir.exists():
+                os.replace(path, outdir)
+                continue
+            shutil.rmtree(path, ignore_errors=True)
+            removed.append(path)
+    return removed
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

@@ -1,0 +1,62 @@
+"""Output folders after a crash: a run killed with SIGKILL leaves its hidden temporary folder;
+the next run for the same output removes it (and only folders of dead processes)."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+from roadtwin_core.atomic import atomic_output_dir
+
+HOLD = """
+import sys, time
+from roadtwin_core.atomic import atomic_output_dir
+with atomic_output_dir(sys.argv[1]) as tmp:
+    (tmp / "half.txt").write_text("half-written")
+    print(tmp, flush=True)
+    time.sleep(60)
+"""
+
+
+def _start_holder(out: Path) -> tuple[subprocess.Popen, Path]:
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(out)], stdout=subprocess.PIPE, text=True)
+    tmp = Path(proc.stdout.readline().strip())
+    assert tmp.is_dir() and tmp.name == f".{out.name}.tmp-{proc.pid}"
+    return proc, tmp
+
+
+def test_kill_9_litter_is_removed_by_the_next_run_live_runs_are_kept(tmp_path):
+    out = tmp_path / "town"
+    with atomic_output_dir(out) as t:
+        (t / "result.txt").write_text("earlier output")
+    killed, stale = _start_holder(out)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait()
+    assert stale.is_dir()                                  # SIGKILL: no cleanup ran
+    live, running = _start_holder(out)
+    try:
+        with atomic_output_dir(out) as t:
+            assert not stale.exists() and running.is_dir()   # dead run's folder gone, live one kept
+            (t / "result.txt").write_text("new output")
+        assert (out / "result.txt").read_text() == "new output"
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["town", running.name])
+    finally:
+        live.kill()
+        live.wait()
+
+
+def test_a_run_killed_between_its_renames_gives_the_earlier_output_back(tmp_path):
+    out = tmp_path / "town"
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    old = tmp_path / f".town.old-{dead.pid}"                  # what such a crash leaves: no town/
+    old.mkdir()
+    (old / "result.txt").write_text("earlier output")
+    try:
+        with atomic_output_dir(out):
+            assert (out / "result.txt").read_text() == "earlier output"
+            raise RuntimeError("this run fails too")
+    except RuntimeError:
+        pass
+    assert (out / "result.txt").read_text() == "earlier output" and not old.exists()
