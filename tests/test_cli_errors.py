@@ -79,6 +79,10 @@ def work(tmp_path_factory) -> Path:
     write_layout(d / "pinched.usda", points=[(0, 0, 0), (0, 10, 0), (5, 5, 0), (10, 0, 0), (10, 10, 0)],
                  faces=[(0, 2, 1), (2, 3, 4)])
     write_layout(d / "nanpoint.usda", points=[(0, 0, 0), (20, 0, 0), (20, float("nan"), 0), (0, 7, 0)])
+    # Topology that does not add up: counts vs indices, an index past the points, a 2-gon.
+    write_layout(d / "countmismatch.usda", counts=[3, 4])
+    write_layout(d / "indexrange.usda", faces=[(0, 1, 2), (0, 2, 9)])
+    write_layout(d / "twogon.usda", faces=[(0, 1), (0, 1, 2, 3)])
     write_layout(d / "nanspacing.usda", rules={"spacingM": (D, float("nan"))})
     write_layout(d / "negedge.usda", rules={"roadEdgeM": (D, -0.5)})
     write_layout(d / "textspacing.usda", rules={"spacingM": (S, "wide")})
@@ -103,6 +107,9 @@ CASES = [
     ("bow-tie", ["compose", "bowtie.usda"], [r"bowtie\.usda", SEG, "overlap|self-intersect"]),
     ("pinched", ["compose", "pinched.usda"], [r"pinched\.usda", SEG, "not one connected polygon"]),
     ("nan-point", ["compose", "nanpoint.usda"], [r"nanpoint\.usda", SEG, "NaN"]),
+    ("count-mismatch", ["compose", "countmismatch.usda"], [r"countmismatch\.usda", SEG, "add up to 7", "6 entries"]),
+    ("index-range", ["compose", "indexrange.usda"], [r"indexrange\.usda", SEG, "point 9", "4 points"]),
+    ("two-gon", ["compose", "twogon.usda"], [r"twogon\.usda", SEG, "2 vertices"]),
     ("nan-rule", ["compose", "nanspacing.usda"], [r"nanspacing\.usda", "spacing", "nan"]),
     ("text-rule", ["compose", "textspacing.usda"], [r"textspacing\.usda", "roadtwin:rules:spacingM"]),
     ("unknown-rule", ["compose", "unknownrule.usda"], [r"unknownrule\.usda", "roadtwin:rules:colour"]),

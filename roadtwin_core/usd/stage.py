@@ -78,6 +78,7 @@ def read_mesh(mesh: UsdGeom.Mesh, world: bool = True) -> tuple[np.ndarray, np.nd
     pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
     idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+    _check_topology(mesh, len(pts), counts, idx)
     if world and len(pts):
         m = np.asarray(mesh.ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64)
         pts = pts @ m[:3, :3] + m[3, :3]
@@ -134,3 +135,19 @@ def write_st(mesh: UsdGeom.Mesh, st: np.ndarray) -> None:
     pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
                                                           UsdGeom.Tokens.vertex)
     pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(st, dtype=np.float32)))
+
+
+def _check_topology(mesh: UsdGeom.Mesh, n_points: int, counts: np.ndarray, idx: np.ndarray) -> None:
+    """Malformed geometry is bad input, named by file and prim, not an IndexError later."""
+    from ..errors import RoadtwinError
+
+    prim = mesh.GetPrim()
+    where = f"{prim.GetStage().GetRootLayer().realPath or prim.GetStage().GetRootLayer().identifier}: mesh {prim.GetPath()}"
+    if len(counts) and counts.min() < 3:
+        raise RoadtwinError(f"{where}: faceVertexCounts has a face with {int(counts.min())} vertices (need >= 3)")
+    if int(counts.sum()) != len(idx):
+        raise RoadtwinError(f"{where}: faceVertexCounts add up to {int(counts.sum())} but faceVertexIndices "
+                            f"has {len(idx)} entries")
+    if len(idx) and (idx.min() < 0 or idx.max() >= n_points):
+        bad = int(idx.max()) if idx.max() >= n_points else int(idx.min())
+        raise RoadtwinError(f"{where}: faceVertexIndices refers to point {bad}, but there are {n_points} points")
