@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from roadtwin_core.atomic import atomic_output_dir
 
 HOLD = """
@@ -53,10 +55,7 @@ def test_a_run_killed_between_its_renames_gives_the_earlier_output_back(tmp_path
     old = tmp_path / f".town.old-{dead.pid}"                  # what such a crash leaves: no town/
     old.mkdir()
     (old / "result.txt").write_text("earlier output")
-    try:
-        with atomic_output_dir(out):
-            assert (out / "result.txt").read_text() == "earlier output"
-            raise RuntimeError("this run fails too")
-    except RuntimeError:
-        pass
+    with pytest.raises(RuntimeError, match="fails too"), atomic_output_dir(out):
+        assert (out / "result.txt").read_text() == "earlier output"
+        raise RuntimeError("this run fails too")
     assert (out / "result.txt").read_text() == "earlier output" and not old.exists()

@@ -133,14 +133,12 @@ class LookTable:
         scale[self.groups["road"]] = road
         scale[self.groups["shoulder"]] = tint
         applied["road_scale"] = [round(float(x), 4) for x in road]
-        pothole = getattr(scene_look, "pothole_albedo", (1.0, 1.0, 1.0))
-        surface = getattr(scene_look, "pothole_surface", "pothole")
         if self.potholes:
-            scale[self.potholes] *= np.asarray(pothole, np.float32)
-            applied["pothole_albedo"] = [round(float(x), 4) for x in pothole]
-            if surface != "pothole" and surface in self.variants:
-                remap[self.potholes] = self.variants[surface]
-                applied["pothole"] = surface
+            scale[self.potholes] *= np.asarray(scene_look.pothole_albedo, np.float32)
+            applied["pothole_albedo"] = [round(float(x), 4) for x in scene_look.pothole_albedo]
+            if scene_look.pothole_surface != "pothole" and scene_look.pothole_surface in self.variants:
+                remap[self.potholes] = self.variants[scene_look.pothole_surface]
+                applied["pothole"] = scene_look.pothole_surface
         return MaterialLook(remap, scale, tuple(float(x) for x in scene_look.sky_tint), applied)
 
 
