@@ -127,12 +127,14 @@ def test_usd_validation_has_no_errors(stage):
 
 
 def layer_files(out: Path) -> list[Path]:
-    return [out / "town.usda", *sorted((out / "layers").glob("*.usda")), *sorted((out / "library").glob("*.usda"))]
+    return [out / "town.usda", *sorted((out / "layers").glob("*.usd[ac]")), *sorted((out / "library").glob("*.usda"))]
 
 
 def test_every_layer_has_stage_metadata(out):
     files = layer_files(out)
     assert {p.stem for p in (out / "layers").glob("*.usda")} == set(LAYER_ORDER[:-1])
+    # Heavy arrays live in crate files beside the layers that sublayer them (DESIGN.md).
+    assert {p.name for p in (out / "layers").glob("*.usdc")} == {f"{n}.geom.usdc" for n in ("roads", "defects", "markings")}
     assert len(list((out / "library").glob("*.usda"))) > 0
     for path in files:
         layer = Sdf.Layer.OpenAsAnonymous(str(path))  # a fresh read of the file, no registry cache
@@ -261,26 +263,34 @@ def test_defect_depth_below_surrounding_road(stage):
 
 
 # --------------------------------------------------------------------------- physics
-def test_colliders(stage, layout_meshes):
-    col = stage.GetPrimAtPath(f"{ROOT}/Collision")
-    assert col and Usd.ModelAPI(col).GetKind() == Kind.Tokens.group
-    names = set()
-    for prim in col.GetChildren():
+def colliders(stage: Usd.Stage) -> list[Usd.Prim]:
+    return [p for p in stage.Traverse() if p.HasAPI(UsdPhysics.CollisionAPI)]
+
+
+def test_colliders_are_the_rendered_road_and_defect_meshes(stage, layout_meshes):
+    """The physics layer marks the road and defect meshes themselves (DESIGN.md: no copies)."""
+    found = colliders(stage)
+    roads = {p.GetName() for p in found if str(p.GetParent().GetPath()) == f"{ROOT}/Roads"}
+    pieces = [p for p in found if str(p.GetPath()).startswith(f"{ROOT}/Defects/")]
+    assert roads == set(layout_meshes)
+    assert len(roads) + len(pieces) == len(found)
+    want_pieces = [p for d in defect_prims(stage) for p in d.GetChildren() if p.IsA(UsdGeom.Mesh)]
+    assert sorted(map(str, (p.GetPath() for p in pieces))) == sorted(map(str, (p.GetPath() for p in want_pieces)))
+    for prim in found:
         assert prim.IsA(UsdGeom.Mesh), prim.GetPath()
-        assert prim.HasAPI(UsdPhysics.CollisionAPI), prim.GetPath()
         assert prim.HasAPI(UsdPhysics.MeshCollisionAPI), prim.GetPath()
         assert UsdPhysics.MeshCollisionAPI(prim).GetApproximationAttr().Get() == UsdPhysics.Tokens.none
         assert not prim.HasAPI(UsdPhysics.RigidBodyAPI), f"{prim.GetPath()}: colliders are static"
-        names.add(prim.GetName())
-    assert names == set(layout_meshes)
+        assert UsdGeom.Imageable(prim).ComputePurpose() == UsdGeom.Tokens.default_, prim.GetPath()
 
 
 def test_collision_area_matches_layout(stage, layout_meshes):
+    """Per segment, the colliders (road mesh + the defect pieces cut into it) cover the layout's area."""
+    found = colliders(stage)
     for name, (lpts, ltris) in layout_meshes.items():
         want = abs(float(signed_areas(lpts, ltris).sum()))
         assert want > 0
-        cpts, ctris = mesh_arrays(stage.GetPrimAtPath(f"{ROOT}/Collision/{name}"))
-        a = signed_areas(cpts, ctris)
+        a = np.concatenate([signed_areas(*mesh_arrays(p)) for p in found if p.GetName() == name])
         # One orientation throughout (no folded-over triangles), and the same outline area.
         assert (a > 0).all() or (a < 0).all(), name
         got = abs(float(a.sum()))
@@ -305,7 +315,7 @@ def test_muting_roads_restores_planar_layout(out, layout_meshes):
 
 # --------------------------------------------------------------------------- determinism
 def stage_files(out: Path) -> dict[str, bytes]:
-    files = [out / "town.usda", *(out / "layers").glob("*.usda"), *(out / "library").glob("*.usda"),
+    files = [out / "town.usda", *(out / "layers").glob("*.usd[ac]"), *(out / "library").glob("*.usda"),
              *(out / "layout").glob("*"), *(out / "textures").glob("*")]
     return {str(p.relative_to(out)): p.read_bytes() for p in files}
 

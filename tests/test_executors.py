@@ -10,7 +10,8 @@ from roadtwin_core.compose import compose
 from roadtwin_core.executors import LocalExecutor, SerialExecutor, make_executor
 from roadtwin_core.usd import write_layout
 
-LAYERS = ["town.usda", "layers/roads.usda", "layers/defects.usda", "layers/physics.usda", "layers/semantics.usda"]
+LAYERS = ["town.usda", "layers/roads.usda", "layers/defects.usda", "layers/physics.usda", "layers/semantics.usda",
+          "layers/roads.geom.usdc", "layers/defects.geom.usdc"]
 
 
 def _strip(x0: float, x1: float, y0: float, y1: float, name: str) -> RoadSegment:

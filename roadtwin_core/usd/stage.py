@@ -27,6 +27,48 @@ def new_stage(path: Path, default_prim: str, doc: str = "") -> Usd.Stage:
     return stage
 
 
+def new_layer(path: Path, default_prim: str, doc: str = "") -> Sdf.Layer:
+    """:func:`new_stage`'s metadata on a bare ``Sdf.Layer`` (crate when the suffix is ``.usdc``):
+    geometry is authored at the Sdf level, with no stage recomposing after every edit."""
+    layer = Sdf.Layer.CreateNew(str(path))
+    info = layer.pseudoRoot
+    info.SetInfo("upAxis", UsdGeom.Tokens.z)
+    info.SetInfo("metersPerUnit", 1.0)
+    info.SetInfo("kilogramsPerUnit", 1.0)
+    layer.defaultPrim = default_prim
+    if doc:
+        layer.documentation = doc
+    return layer
+
+
+def _array_attr(spec: Sdf.PrimSpec, name: str, type_name, value) -> Sdf.AttributeSpec:
+    attr = Sdf.AttributeSpec(spec, name, type_name)
+    attr.default = value
+    return attr
+
+
+def author_mesh_geometry(layer: Sdf.Layer, path: str, vertices: np.ndarray, faces: np.ndarray,
+                         st: np.ndarray | None = None) -> None:
+    """Over ``path`` in ``layer`` with a triangle mesh's heavy arrays (points, face counts and
+    indices, extent, vertex ``primvars:st``), each array handed over from numpy in one call.
+
+    Only the arrays: the prim's type, kind and small attributes live in the readable layer that
+    sublayers this one, so each array is authored exactly once. Call inside ``Sdf.ChangeBlock``."""
+    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(path))
+    pts = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
+    tris = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
+    _array_attr(spec, UsdGeom.Tokens.points, Sdf.ValueTypeNames.Point3fArray, Vt.Vec3fArray.FromNumpy(pts))
+    _array_attr(spec, UsdGeom.Tokens.faceVertexCounts, Sdf.ValueTypeNames.IntArray,
+                Vt.IntArray.FromNumpy(np.full(len(tris), 3, dtype=np.int32)))
+    _array_attr(spec, UsdGeom.Tokens.faceVertexIndices, Sdf.ValueTypeNames.IntArray, Vt.IntArray.FromNumpy(tris.ravel()))
+    lo, hi = (pts.min(axis=0), pts.max(axis=0)) if len(pts) else (np.zeros(3, np.float32),) * 2
+    _array_attr(spec, UsdGeom.Tokens.extent, Sdf.ValueTypeNames.Float3Array, Vt.Vec3fArray.FromNumpy(np.stack([lo, hi])))
+    if st is not None:
+        attr = _array_attr(spec, "primvars:st", Sdf.ValueTypeNames.TexCoord2fArray,
+                           Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(st, dtype=np.float32).reshape(-1, 2)))
+        attr.SetInfo(UsdGeom.Tokens.interpolation, UsdGeom.Tokens.vertex)
+
+
 def set_kind(prim: Usd.Prim, kind: str) -> None:
     Usd.ModelAPI(prim).SetKind({"assembly": Kind.Tokens.assembly, "group": Kind.Tokens.group,
                                "component": Kind.Tokens.component}[kind])

@@ -24,12 +24,13 @@ from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_materia
 from ..markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
 from .looks import write_looks
-from .stage import (apply_labels, lane_st, new_stage, planar_st, safe_prim_name, set_attrs, set_kind, write_mesh,
-                    write_st)
+from .stage import (apply_labels, author_mesh_geometry, lane_st, new_layer, new_stage, planar_st, safe_prim_name,
+                    set_attrs, set_kind)
 
 LAYERS = ("looks", "semantics", "physics", "markings", "defects", "roads")
 VARIANT_KINDS = ("driving", "junction")  # the surfaces the root's roadMaterial variant set switches
 DEFAULT_ROAD_MATERIAL = "asphalt"
+GEOMETRY_SUFFIX = ".geom.usdc"  # layers/<name>.usda sublayers layers/<name>.geom.usdc
 MARKING_MESHES = "MarkingMeshes"  # group of the draped paint meshes (the layout's curves are in "Markings")
 
 
@@ -77,28 +78,47 @@ def road_variants(segments: list[RoadSegment]) -> dict[str, list[tuple[str, str]
     return out
 
 
-def _write_markings(path: Path, name: str, doc: str, markings: list[MarkingMesh], prim_names: list[str]) -> None:
+def _write_markings(outdir: Path, name: str, doc: str, markings: list[MarkingMesh], prim_names: list[str]) -> None:
     """``/<root>/MarkingMeshes/<id>`` meshes (kind component under a group), type and colour as
-    token attributes (as on the layout's curves)."""
+    token attributes (as on the layout's curves); their arrays go to ``markings.geom.usdc``."""
     root = f"/{name}"
-    stage = new_stage(path, name, doc + ": lane markings draped on the road")
+    stage = new_stage(outdir / "layers/markings.usda", name, doc + ": lane markings draped on the road")
     _over(stage, root)
+    geometry = _geometry_layer(outdir, "markings", name, doc)
+    with Sdf.ChangeBlock():
+        for prim_name, m in zip(prim_names, markings):
+            author_mesh_geometry(geometry, f"{root}/{MARKING_MESHES}/{prim_name}", m.vertices, m.faces,
+                                 planar_st(m.vertices))
     if markings:
         set_kind(UsdGeom.Xform.Define(stage, f"{root}/{MARKING_MESHES}").GetPrim(), "group")
     for prim_name, m in zip(prim_names, markings):
         mesh = UsdGeom.Mesh.Define(stage, f"{root}/{MARKING_MESHES}/{prim_name}")
-        write_mesh(mesh, m.vertices, m.faces)
-        write_st(mesh, planar_st(m.vertices))
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         prim = mesh.GetPrim()
         set_kind(prim, "component")
         for key, value in (("type", m.marking_type), ("color", m.color)):
             prim.CreateAttribute(f"roadtwin:marking:{key}", Sdf.ValueTypeNames.Token, custom=True).Set(value)
         prim.CreateAttribute("roadtwin:marking:id", Sdf.ValueTypeNames.String, custom=True).Set(m.id)
-    stage.GetRootLayer().Save()
+    _save(stage, geometry)
 
 
 def _over(stage: Usd.Stage, path: str) -> Usd.Prim:
     return stage.OverridePrim(Sdf.Path(path))
+
+
+def _geometry_layer(outdir: Path, layer: str, name: str, doc: str) -> Sdf.Layer:
+    """The crate beside ``layers/<layer>.usda`` that holds its meshes' arrays."""
+    return new_layer(outdir / "layers" / f"{layer}{GEOMETRY_SUFFIX}", name,
+                     f"{doc}: mesh arrays of {layer}.usda (crate, sublayered by it)")
+
+
+def _save(stage: Usd.Stage, geometry: Sdf.Layer) -> None:
+    """Save the crate, then the readable layer sublayering it (added last, so the stage composes
+    the crate once instead of after every edit)."""
+    geometry.Save()
+    layer = stage.GetRootLayer()
+    layer.subLayerPaths.append(f"./{Path(geometry.realPath).name}")
+    layer.Save()
 
 
 def write_town(outdir: Path, parts: TownParts) -> Path:
@@ -109,12 +129,14 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
 
     roads = new_stage(outdir / "layers/roads.usda", lay.name, doc + ": merged road surfaces")
     _over(roads, root)
-    for seg, m in zip(lay.segments, parts.merged):
-        v, f = m.part(-1)
-        mesh = UsdGeom.Mesh(_over(roads, seg.prim_path))
-        write_mesh(mesh, v, f)
-        write_st(mesh, segment_st(seg, v))
-    roads.GetRootLayer().Save()
+    geometry = _geometry_layer(outdir, "roads", lay.name, doc)
+    with Sdf.ChangeBlock():
+        for seg, m in zip(lay.segments, parts.merged):
+            v, f = m.part(-1)
+            author_mesh_geometry(geometry, seg.prim_path, v, f, segment_st(seg, v))
+    for seg in lay.segments:
+        UsdGeom.Mesh(_over(roads, seg.prim_path)).CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    _save(roads, geometry)
 
     defects = new_stage(outdir / "layers/defects.usda", lay.name, doc + ": defect instances")
     _over(defects, root)
@@ -126,6 +148,11 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
             if (m.face_owner == local).any():
                 v, f = m.part(local)
                 pieces.setdefault(global_index, []).append((seg.id, v, f))
+    geometry = _geometry_layer(outdir, "defects", lay.name, doc)
+    with Sdf.ChangeBlock():
+        for i, p in enumerate(parts.placements):
+            for seg_id, v, f in pieces.get(i, []):
+                author_mesh_geometry(geometry, f"{root}/Defects/{p.instance_id}/{seg_id}", v, f, planar_st(v))
     for i, p in enumerate(parts.placements):
         prim = UsdGeom.Xform.Define(defects, f"{root}/Defects/{p.instance_id}").GetPrim()
         set_kind(prim, "component")
@@ -135,35 +162,32 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
                                             "poseXYYaw": [p.x, p.y, p.yaw], "scale": list(p.scale)})
         prim.CreateAttribute("roadtwin:source", Sdf.ValueTypeNames.Asset, custom=True).Set(
             Sdf.AssetPath("../" + parts.library_files[p.model.name].removeprefix("./")))  # relative to layers/
-        for seg_id, v, f in pieces.get(i, []):
+        for seg_id, _, _ in pieces.get(i, []):
             mesh = UsdGeom.Mesh.Define(defects, f"{root}/Defects/{p.instance_id}/{seg_id}")
-            write_mesh(mesh, v, f)
-            write_st(mesh, planar_st(v))
-    defects.GetRootLayer().Save()
+            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    _save(defects, geometry)
 
     marking_names = marking_prim_names(parts.markings)
-    _write_markings(outdir / "layers/markings.usda", lay.name, doc, parts.markings, marking_names)
+    _write_markings(outdir, lay.name, doc, parts.markings, marking_names)
 
     physics = new_stage(outdir / "layers/physics.usda", lay.name, doc + ": static road collision")
     _over(physics, root)
     scene = UsdPhysics.Scene.Define(physics, f"{root}/PhysicsScene")
     scene.CreateGravityDirectionAttr((0.0, 0.0, -1.0))
     scene.CreateGravityMagnitudeAttr(9.81)
-    col = UsdGeom.Xform.Define(physics, f"{root}/Collision").GetPrim()
-    set_kind(col, "group")
-    for seg, m in zip(lay.segments, parts.merged):
-        mesh = UsdGeom.Mesh.Define(physics, f"{root}/Collision/{seg.id}")
-        write_mesh(mesh, m.vertices, m.faces)
-        mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)
-        UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
-        UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.none)
+    colliders = [seg.prim_path for seg in lay.segments]
+    colliders += [f"{root}/Defects/{p.instance_id}/{seg_id}" for i, p in enumerate(parts.placements)
+                  for seg_id, _, _ in pieces.get(i, [])]
+    for path in colliders:
+        prim = _over(physics, path)
+        UsdPhysics.CollisionAPI.Apply(prim)
+        UsdPhysics.MeshCollisionAPI.Apply(prim).CreateApproximationAttr(UsdPhysics.Tokens.none)
     physics.GetRootLayer().Save()
 
     sem = new_stage(outdir / "layers/semantics.usda", lay.name, doc + ": semantic labels")
     _over(sem, root)
     for seg in lay.segments:
         apply_labels(_over(sem, seg.prim_path), ["road", seg.kind])
-        apply_labels(_over(sem, f"{root}/Collision/{seg.id}"), ["road", "collision"])
     for p in parts.placements:
         apply_labels(_over(sem, f"{root}/Defects/{p.instance_id}"), ["road_defect", p.model.defect_type])
     for name, m in zip(marking_names, parts.markings):

@@ -1,6 +1,8 @@
 """Read a composed town stage back into numpy: what renderers, physics backends and planners
 consume (they never need to walk USD themselves).
 
+Colliders are the meshes the physics layer gives ``UsdPhysics.CollisionAPI``: the same road and
+defect meshes that are rendered (read once, shared arrays), whatever their visibility.
 Rendered meshes are the road segments, the defect pieces and the lane markings (meshes under a
 prim carrying ``roadtwin:marking:type``, i.e. ``/<root>/Markings/<id>``). With ``looks=True``
 each of them also gets its texture coordinates (``TownMesh.st``, per face corner) and its bound
@@ -108,10 +110,11 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
             marking_types[str(prim.GetPath())] = str(marking.Get())
         if not prim.IsA(UsdGeom.Mesh):
             continue
-        if prim.HasAPI(UsdPhysics.CollisionAPI):
-            v, f = read_mesh(UsdGeom.Mesh(prim))
+        mesh = UsdGeom.Mesh(prim)
+        v = f = None
+        if prim.HasAPI(UsdPhysics.CollisionAPI):  # the road and defect meshes themselves (physics.usda)
+            v, f = read_mesh(mesh)
             scene.colliders.append(TownMesh(str(prim.GetPath()), "collision", v, f))
-            continue
         if prim.HasAttribute("roadtwin:segment:kind"):
             target, kind = scene.roads, str(prim.GetAttribute("roadtwin:segment:kind").Get())
         elif str(prim.GetParent().GetPath()) in defects:
@@ -123,8 +126,8 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
             target = scene.markings
         if UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.invisible:
             continue
-        mesh = UsdGeom.Mesh(prim)
-        v, f = read_mesh(mesh)
+        if v is None:
+            v, f = read_mesh(mesh)
         if kind is None:
             kind = defects[str(prim.GetParent().GetPath())].defect_type
         tm = TownMesh(str(prim.GetPath()), kind, v, f)
