@@ -85,7 +85,7 @@ def town(tmp_path_factory) -> Path:
 def ref(town) -> dict:
     r = usd_reference(town)
     assert r["defect_prims"] == 6 and r["defect_meshes"] >= 6
-    assert "Town/Collision" not in " ".join(r["names"])  # colliders are guides
+    assert "Town/Collision" not in " ".join(r["names"])  # no collider copies (physics marks these meshes)
     return r
 
 
@@ -225,6 +225,9 @@ def test_usdz(exported, ref, town):
     names = zipfile.ZipFile(exported["usdz"]).namelist()
     assert names[0] == "town.usda" and "layers/defects.usda" in names and "layers/looks.usda" in names
     assert any(n.startswith("library/") for n in names)   # the defect library assets came along
+    assert {f"layers/{n}.geom.usdc" for n in ("roads", "defects")} <= set(names)  # and the mesh arrays
+    for prim in rendered:
+        assert len(UsdGeom.Mesh(prim).GetPointsAttr().Get()) == len(ref["meshes"][str(prim.GetPath())]["points"])
     textures = {f"textures/{p.name}" for p in (town.parent / "textures").iterdir()}
     assert textures and textures <= set(names)             # every texture travels inside the package
     for prim in rendered:                                   # and the bound materials resolve to them

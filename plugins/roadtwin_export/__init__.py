@@ -4,7 +4,7 @@
 beside the stage unless ``-o`` says otherwise. Every exporter:
 
 - reads what a viewer would draw: each ``UsdGeom.Mesh`` with purpose default/render and not
-  invisible (so the physics colliders, purpose ``guide``, are left out), in world space, Z-up
+  invisible (the physics colliders are the road and defect meshes themselves, drawn once), in world space, Z-up
   meters, triangulated (see ``_stage.py``);
 - keeps one mesh per prim, named by its prim path (``Town/Roads/east_00_1``,
   ``Town/Defects/D00003/east_00_1``), with the semantic class from ``UsdSemantics`` labels;

@@ -1,7 +1,7 @@
 """Read what a viewer would draw from a USD stage: every renderable Mesh, in world space.
 
 *Renderable* means: a ``UsdGeom.Mesh`` whose computed purpose is ``default`` or ``render``
-(``guide`` and ``proxy`` are skipped, e.g. the physics colliders under ``/Town/Collision``) and
+(``guide`` and ``proxy`` are skipped, e.g. helper geometry a user adds) and
 whose computed visibility is not ``invisible``. Instanceable references are followed (instance
 proxies are read like ordinary prims); a ``UsdGeom.PointInstancer`` is expanded into one part per
 instance and per prototype mesh (its prototypes are not drawn on their own, as in Hydra).

@@ -1,7 +1,7 @@
 """glb, obj and ply exporters (through trimesh): one mesh per renderable USD Mesh prim.
 
 All three start from :func:`._stage.collect_parts` (world space, Z-up meters, triangles, guide
-and proxy purposes such as the physics colliders skipped) and keep road and defects apart:
+and proxy purposes skipped) and keep road and defects apart:
 
 - **glb**: one node + mesh per prim, both named by the prim path without the leading ``/``
   (``Town/Roads/east_00_1``, ``Town/Defects/D00003/east_00_1``). glTF is Y-up by spec, so points

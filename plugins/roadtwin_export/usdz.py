@@ -4,17 +4,19 @@
 defects, roads, the input layout), references, payloads and asset-valued attributes (the defect
 library assets named by ``roadtwin:source``) and rewrites their paths into the package, so the
 layered structure (and the ability to mute a layer) survives. Layers stay as they were written
-(usda); this is a plain usdz, not the ARKit profile (which flattens to one usdc layer).
+(readable usda, plus the ``*.geom.usdc`` crate files holding the mesh arrays that the roads,
+defects and markings layers sublayer); this is a plain usdz, not the ARKit profile (which
+flattens to one usdc layer).
 
 Before the package replaces the output it is opened again and must have the same default prim,
-the same renderable meshes and the same defect prims (children of ``/<root>/Defects``) as the
+the same renderable meshes (with the same point counts) and the same defect prims (children of ``/<root>/Defects``) as the
 source stage.
 """
 from __future__ import annotations
 
 from pathlib import Path
 
-from pxr import Sdf, Tf, Usd, UsdUtils
+from pxr import Sdf, Tf, Usd, UsdGeom, UsdUtils
 
 from roadtwin_core import RoadtwinError
 
@@ -22,13 +24,20 @@ from ._atomic import atomic_files
 from ._stage import open_stage, renderable_prims
 
 
-def _summary(stage: Usd.Stage) -> tuple[str, list[str], list[str]]:
+def _summary(stage: Usd.Stage) -> tuple[str, list[tuple[str, int]], list[str]]:
+    """Default prim, renderable meshes with their point counts (a crate left out of the package
+    keeps the prims but loses their points), defect prims."""
     root = stage.GetDefaultPrim()
     name = root.GetName() if root else ""
     group = stage.GetPrimAtPath(f"/{name}/Defects") if name else None
     defects = sorted(str(p.GetPath()) for p in group.GetChildren()) if group else []
-    meshes = sorted(str(p.GetPath()) for p in renderable_prims(stage))
+    meshes = sorted((str(p.GetPath()), _point_count(p)) for p in renderable_prims(stage))
     return name, meshes, defects
+
+
+def _point_count(prim: Usd.Prim) -> int:
+    points = UsdGeom.Mesh(prim).GetPointsAttr().Get() if prim.IsA(UsdGeom.Mesh) else None
+    return len(points) if points is not None else 0
 
 
 class UsdzExporter:
