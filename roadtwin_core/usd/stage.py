@@ -159,16 +159,17 @@ def lane_st(vertices: np.ndarray, centerline: np.ndarray) -> np.ndarray:
         return planar_st(vertices)
     a, d, length = c[:-1][keep], d[keep], length[keep]
     station = np.concatenate([[0.0], np.cumsum(length)[:-1]])
-    rel = xy[:, None, :] - a[None]                                        # (P,S,2)
-    t = (rel * d[None]).sum(-1) / length[None] ** 2
+    # x and y apart as (P,S) planes: a (P,S,2) array summed over its last axis costs several times more
+    rx, ry = xy[:, 0, None] - a[None, :, 0], xy[:, 1, None] - a[None, :, 1]
+    t = (rx * d[None, :, 0] + ry * d[None, :, 1]) / length[None] ** 2
     lo = np.zeros(len(a)); lo[0] = -np.inf
     hi = np.ones(len(a)); hi[-1] = np.inf
     t = np.clip(t, lo[None], hi[None])
-    dist = ((rel - t[..., None] * d[None]) ** 2).sum(-1)
-    k = dist.argmin(axis=1)
+    ex, ey = rx - t * d[None, :, 0], ry - t * d[None, :, 1]
+    k = (ex * ex + ey * ey).argmin(axis=1)
     rows = np.arange(len(xy))
     s = station[k] + t[rows, k] * length[k]
-    lateral = (d[k, 0] * rel[rows, k, 1] - d[k, 1] * rel[rows, k, 0]) / length[k]
+    lateral = (d[k, 0] * ry[rows, k] - d[k, 1] * rx[rows, k]) / length[k]
     return np.column_stack([s / ST_TILE_M, 0.5 + lateral / ST_TILE_M])
 
 

@@ -4,13 +4,22 @@ Strongest first: looks, semantics, physics, markings, defects, roads, then the u
 layout (copied into ``layout/``). Roads *override* the layout's planar segment meshes with the merged, elevated
 road surface, so muting ``roads.usda`` shows the input again. Defect instances carry their baked
 geometry (each one drapes over a different piece of road, so it cannot be shared). The physics
-layer holds one static triangle-mesh collider per segment with the defects baked in. Lane
+layer applies static triangle-mesh collision (``CollisionAPI`` + ``MeshCollisionAPI``,
+approximation none) as overs to those same road and defect meshes: together they are the road
+with the defects baked in, and what collides is exactly what is drawn (no copy to drift). Lane
 markings are draped paint meshes under ``/<root>/MarkingMeshes``: ``/<root>/Markings`` already
 holds the layout's marking curves (guide-purpose BasisCurves, the input data), and a mesh over
 the same path would inherit the curve's attributes and purpose. The looks layer holds the materials and binds
 them (see ``looks.py``). Every rendered mesh carries ``primvars:st`` (the st convention of
 :mod:`roadtwin_core.looks`): lane-aligned on driving segments with a centreline, world-planar
 elsewhere.
+
+Each mesh is stored once, and in binary: ``roads``, ``defects`` and ``markings`` each sublayer a
+crate ``layers/<name>.geom.usdc`` holding their meshes' arrays (points, face counts and indices,
+extent, st), authored at the Sdf level straight from numpy; the ``.usda`` layers keep what a
+person reads (prims, kinds, attributes). A sublayer rather than a reference or payload, because
+the road segments are defined in the input layout, a local opinion that LIVRPS ranks above any
+reference: a referenced crate's points would lose to the layout's planar ones.
 """
 from __future__ import annotations
 
