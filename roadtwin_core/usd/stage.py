@@ -69,6 +69,25 @@ def author_mesh_geometry(layer: Sdf.Layer, path: str, vertices: np.ndarray, face
         attr.SetInfo(UsdGeom.Tokens.interpolation, UsdGeom.Tokens.vertex)
 
 
+def author_api_over(layer: Sdf.Layer, path: str, schemas: list[str], attrs: dict[str, tuple[Any, Any]],
+                    uniform: bool = False) -> None:
+    """Over ``path`` in ``layer`` applying API ``schemas`` (prepended, as ``Apply`` does) with
+    ``attrs`` (name -> (value type, value)): what ``XxxAPI.Apply(prim)`` + ``CreateXxxAttr`` write,
+    at the Sdf level, so thousands of overs need no stage to recompose. Call inside ``Sdf.ChangeBlock``."""
+    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(path))
+    ops = spec.GetInfo("apiSchemas")
+    spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=list(ops.prependedItems) + list(schemas)))
+    for name, (type_name, value) in attrs.items():
+        attr = Sdf.AttributeSpec(spec, name, type_name, Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying)
+        attr.default = value
+
+
+def author_labels(layer: Sdf.Layer, path: str, labels: list[str], taxonomy: str = LABEL_TAXONOMY) -> None:
+    """:func:`apply_labels` at the Sdf level (same specs; see :func:`author_api_over`)."""
+    author_api_over(layer, path, [f"SemanticsLabelsAPI:{taxonomy}"],
+                    {f"semantics:labels:{taxonomy}": (Sdf.ValueTypeNames.TokenArray, Vt.TokenArray(labels))})
+
+
 def set_kind(prim: Usd.Prim, kind: str) -> None:
     Usd.ModelAPI(prim).SetKind({"assembly": Kind.Tokens.assembly, "group": Kind.Tokens.group,
                                "component": Kind.Tokens.component}[kind])

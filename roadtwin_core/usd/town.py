@@ -33,7 +33,7 @@ from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_materia
 from ..markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
 from .looks import write_looks
-from .stage import (apply_labels, author_mesh_geometry, lane_st, new_layer, new_stage, planar_st, safe_prim_name,
+from .stage import (author_api_over, author_labels, author_mesh_geometry, lane_st, new_layer, new_stage, planar_st, safe_prim_name,
                     set_attrs, set_kind)
 
 LAYERS = ("looks", "semantics", "physics", "markings", "defects", "roads")
@@ -187,20 +187,21 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
     colliders = [seg.prim_path for seg in lay.segments]
     colliders += [f"{root}/Defects/{p.instance_id}/{seg_id}" for i, p in enumerate(parts.placements)
                   for seg_id, _, _ in pieces.get(i, [])]
-    for path in colliders:
-        prim = _over(physics, path)
-        UsdPhysics.CollisionAPI.Apply(prim)
-        UsdPhysics.MeshCollisionAPI.Apply(prim).CreateApproximationAttr(UsdPhysics.Tokens.none)
+    with Sdf.ChangeBlock():
+        for path in colliders:
+            author_api_over(physics.GetRootLayer(), path, ["PhysicsCollisionAPI", "PhysicsMeshCollisionAPI"],
+                            {"physics:approximation": (Sdf.ValueTypeNames.Token, UsdPhysics.Tokens.none)}, uniform=True)
     physics.GetRootLayer().Save()
 
     sem = new_stage(outdir / "layers/semantics.usda", lay.name, doc + ": semantic labels")
     _over(sem, root)
-    for seg in lay.segments:
-        apply_labels(_over(sem, seg.prim_path), ["road", seg.kind])
-    for p in parts.placements:
-        apply_labels(_over(sem, f"{root}/Defects/{p.instance_id}"), ["road_defect", p.model.defect_type])
-    for name, m in zip(marking_names, parts.markings):
-        apply_labels(_over(sem, f"{root}/{MARKING_MESHES}/{name}"), ["lane_marking", m.marking_type])
+    labels = [(seg.prim_path, ["road", seg.kind]) for seg in lay.segments]
+    labels += [(f"{root}/Defects/{p.instance_id}", ["road_defect", p.model.defect_type]) for p in parts.placements]
+    labels += [(f"{root}/{MARKING_MESHES}/{name}", ["lane_marking", m.marking_type])
+               for name, m in zip(marking_names, parts.markings)]
+    with Sdf.ChangeBlock():
+        for path, tags in labels:
+            author_labels(sem.GetRootLayer(), path, tags)
     sem.GetRootLayer().Save()
 
     looks = new_stage(outdir / "layers/looks.usda", lay.name, doc + ": materials and their bindings")
