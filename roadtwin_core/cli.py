@@ -134,8 +134,14 @@ def import_layout(
     imp = get_plugin_manager().get("layout_importers", importer)
     if not source.exists():
         raise RoadtwinError(f"{source}: no such file")
+    if out.suffix not in (".usda", ".usd", ".usdc"):
+        raise RoadtwinError(f"{out}: the layout must be a .usda, .usd or .usdc file")
+    if source.is_dir():
+        raise RoadtwinError(f"{source}: is a directory, not a map file")
+    from .atomic import check_output_file
+
+    check_output_file(out)
     layout = imp.load(source, None)
-    out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.tmp-{_os.getpid()}{out.suffix}")
     try:
         write_layout(layout, tmp, f"roadtwin layout imported from {source.name} by {importer}")

@@ -58,6 +58,17 @@ def parse_size(text: str, what: str = "--size") -> tuple[int, int]:
     return w, h
 
 
+MAX_FRAMES = 1_000_000
+
+
+def check_range(option: str, value, lo: float, hi: float, unit: str = "") -> None:
+    """A numeric option must be finite and within [lo, hi] (NaN fails every comparison)."""
+    ok = value is not None and np.isfinite(value) and lo <= value <= hi
+    if not ok:
+        unit = f" {unit}" if unit else ""
+        raise RoadtwinError(f"{option} must be within {lo:g}..{hi:g}{unit}, got {value}")
+
+
 def parse_views(text: str | None) -> tuple[str, float | None, str]:
     """``random`` | ``defects:SHARE`` | ``defects:SHARE:clear`` -> (kind, share, background)."""
     if text is None:
@@ -140,25 +151,23 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     runner = make_executor(executor, ray_address, workers)
     if workers is not None and workers < 1:
         raise RoadtwinError(f"--workers must be >= 1, got {workers}")
-    if frames < 1:
-        raise RoadtwinError(f"--frames must be >= 1, got {frames}")
-    if seed < 0:
-        raise RoadtwinError(f"--seed must be >= 0, got {seed}")
-    if not (height > 0 and np.isfinite(height)):
-        raise RoadtwinError(f"--height must be > 0 m, got {height}")
-    if pitch is not None and not -89.0 <= pitch <= 89.0:
-        raise RoadtwinError(f"--pitch must be within +-89 degrees, got {pitch}")
+    check_range("--frames", frames, 1, MAX_FRAMES)
+    check_range("--seed", seed, 0, 2**63 - 1)
+    check_range("--hfov", hfov, 1.0, 179.0, "degrees")
+    check_range("--height", height, 1e-3, 1000.0, "m")
+    if pitch is not None:
+        check_range("--pitch", pitch, -89.0, 89.0, "degrees")
     if weather not in WEATHERS:
         raise RoadtwinError(f"unknown weather {weather!r} (known: {', '.join(WEATHERS)})")
     intr = Intrinsics.from_fov(width, height_px, hfov)
-    if stereo and not (baseline > 0 and np.isfinite(baseline)):
-        raise RoadtwinError(f"--baseline must be > 0 m, got {baseline}")
+    if stereo:
+        check_range("--baseline", baseline, 1e-3, 100.0, "m")
     ev_w, ev_h = parse_size(event_size, "--event-size") if event_size else (width, height_px)
     if events:
-        if event_frames < 2:
-            raise RoadtwinError(f"--event-frames must be >= 2, got {event_frames}")
-        if not event_threshold > 0:
-            raise RoadtwinError(f"--event-threshold must be > 0, got {event_threshold}")
+        check_range("--event-frames", event_frames, 2, MAX_FRAMES)
+        check_range("--event-threshold", event_threshold, 1e-6, 100.0)
+        check_range("--speed", speed, 1e-3, 200.0, "m/s")
+        check_range("--event-rate", event_rate, 1e-3, 1e6, "Hz")
         try:
             import h5py  # noqa: F401
         except ImportError:
