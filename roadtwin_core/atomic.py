@@ -75,12 +75,20 @@ def make_parent(path: str | Path) -> Path:
     return path
 
 
-def check_output_file(path: str | Path) -> Path:
-    """An output file path that can be written: not a directory, its folder made."""
+def check_output_path(path: str | Path, folder: bool = False) -> Path:
+    """Refuse, before any work, an output that cannot be written: a file output that is a
+    directory (a folder output that is a file), or a path through a regular file. Creates nothing."""
     path = Path(path)
-    if path.is_dir():
+    if not folder and path.is_dir():
         raise RoadtwinError(f"{path}: is a directory (expected an output file)")
-    return make_parent(path)
+    if folder and path.exists() and not path.is_dir():
+        raise RoadtwinError(f"{path}: exists and is not a directory")
+    up = path.parent
+    while not up.exists() and up != up.parent:
+        up = up.parent
+    if not up.is_dir():
+        raise RoadtwinError(f"{path}: cannot be written: {up} is a file, not a folder")
+    return path
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

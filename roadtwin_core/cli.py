@@ -138,10 +138,11 @@ def import_layout(
         raise RoadtwinError(f"{out}: the layout must be a .usda, .usd or .usdc file")
     if source.is_dir():
         raise RoadtwinError(f"{source}: is a directory, not a map file")
-    from .atomic import check_output_file
+    from .atomic import check_output_path, make_parent
 
-    check_output_file(out)
+    check_output_path(out)
     layout = imp.load(source, None)
+    make_parent(out)
     tmp = out.with_name(f".{out.stem}.tmp-{_os.getpid()}{out.suffix}")
     try:
         write_layout(layout, tmp, f"roadtwin layout imported from {source.name} by {importer}")

@@ -5,6 +5,7 @@ Registered in :mod:`roadtwin_core.cli` with ``app.command()(plan)``. Bad input r
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Iterable, Optional
 
@@ -14,6 +15,7 @@ from rich.table import Table
 
 from .errors import RoadtwinError
 
+MAX_RESOLUTION_M = 2.0
 
 
 def comparison_table(results: Iterable, title: str = "path planning") -> Table:
@@ -53,10 +55,18 @@ def plan(
     """Plan a path around road defects: grid maps of the stage, planner(s), metrics, plots, USD curve."""
     from .planning import PlanFailure, plan_stage
 
+    from .atomic import check_output_path
+
+    check_output_path(out, folder=True)
     if all_planners and planner is not None:
         raise RoadtwinError("give --planner NAME or --all, not both")
     if seed < 0:
         raise RoadtwinError(f"--seed must be >= 0, got {seed}")
+    # a cell wider than a lane cannot tell a wheel path from a defect: the grid is meaningless
+    if not (math.isfinite(resolution) and 0 < resolution <= MAX_RESOLUTION_M):
+        raise RoadtwinError(f"--resolution must be within 0..{MAX_RESOLUTION_M:g} m, got {resolution}")
+    if not math.isfinite(max_g) or max_g < 0:
+        raise RoadtwinError(f"--max-g must be a finite number >= 0, got {max_g}")
     names = None if all_planners else [planner or "hybrid_astar"]
     run = plan_stage(stage, out, planners=names, start=start, goal=goal, collision=collision,
                      resolution=resolution, seed=seed, sweep=sweep, max_g=max_g)

@@ -123,10 +123,10 @@ def _classmap_variants(text: str) -> dict[str, str]:
     }
 
 
-def _points(n: int = 3000, seed: int = 0) -> np.ndarray:
-    """A 10 m x 6 m road patch with a 2 % cross slope and 5 mm noise."""
+def _points(n: int = 4000, seed: int = 0) -> np.ndarray:
+    """A 2 m x 1 m road patch (2000 points/m2) with a 2 % cross slope and 5 mm noise."""
     rng = np.random.default_rng(seed)
-    xy = rng.uniform([0, -3], [10, 3], size=(n, 2))
+    xy = rng.uniform([0, -0.5], [2, 0.5], size=(n, 2))
     z = 0.02 * xy[:, 1] + rng.normal(0, 0.005, n)
     return np.column_stack([xy, z])
 
@@ -474,11 +474,11 @@ RECON = [
     *[case(f"reconstruct-defects-{n.replace('.', '-')}", [*D, "{c}/" + n], ERR, re_name(n))
       for n in ("disp_truncated.png", "disp_header.png", "disp_text.png", "disp_empty.png", "disp_zero.png",
                 "disp_1x1.png", "disp_3x2.png", "disp_row.png", "disp_rgb.png", "disp_allnan.npy",
-                "disp_inf.npy", "disp_neg.npy", "disp_3d.npy", "disp_1d.npy", "disp_complex.npy", "disp_strings.npy",
+                "disp_inf.npy", "disp_3d.npy", "disp_1d.npy", "disp_complex.npy", "disp_strings.npy",
                 "disp_truncated.pfm", "disp_badheader.pfm", "disp.tiff", "a folder.png", "a folder.npy",
                 "cloud.npz", "disp_bool.npy")],
     *[case(f"reconstruct-defects-{n.replace('.', '-')}", [*D, "{c}/" + n], ANY, re_name(n))
-      for n in ("disp_const.png", "disp_partnan.npy", "disp_huge.npy", "disp.pfm")],
+      for n in ("disp_const.png", "disp_neg.npy", "disp_partnan.npy", "disp_huge.npy", "disp.pfm")],
     case("reconstruct-defects-missing", [*D, "{c}/nope.png"], ERR, "nope"),
     case("reconstruct-defects-scale-zero", [*D, "{c}/disp.png", "--disparity-scale", "0"], ERR, "disparity.scale"),
     case("reconstruct-defects-scale-nan", [*D, "{c}/disp.png", "--disparity-scale", "nan"], ERR, "disparity.scale"),

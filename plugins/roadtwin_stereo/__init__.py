@@ -71,6 +71,37 @@ def _image(x: Any, what: str) -> tuple[np.ndarray, str]:
     return img, str(p)
 
 
+MIN_SIDE_PX = 16  # smaller maps hold no road model to fit
+
+
+def _read_disparity(path: Path, scale: float, transformed: bool) -> np.ndarray:
+    """A disparity map file, checked at the edge: a readable file of real numbers, 2-D and at
+    least MIN_SIDE_PX a side. An untransformed map's values <= 0 are invalid pixels (as for
+    arrays); a transformed map may hold any finite value."""
+    if path.is_dir():
+        raise RoadtwinError(f"{path}: is a directory, not a disparity map")
+    if not path.is_file():
+        raise RoadtwinError(f"{path}: no such disparity map")
+    if path.suffix.lower() == ".npy":
+        try:
+            head = np.load(path, mmap_mode="r", allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise RoadtwinError(f"{path}: cannot read as a .npy array ({exc})") from None
+        if head.dtype.kind not in "iuf":
+            raise RoadtwinError(f"{path}: disparity must hold real numbers, got dtype {head.dtype}")
+        del head
+    try:
+        disp = load_disparity(path, scale)
+    except (ValueError, TypeError, OSError) as exc:
+        raise RoadtwinError(f"{path}: cannot read the disparity map ({exc})") from None
+    if min(disp.shape) < MIN_SIDE_PX:
+        raise RoadtwinError(f"{path}: disparity map is {disp.shape[1]}x{disp.shape[0]} px, too small to model a road "
+                            f"(at least {MIN_SIDE_PX} px a side)")
+    if not transformed:
+        disp[disp <= 0] = np.nan
+    return disp
+
+
 def _K(k: Any) -> np.ndarray:
     a = np.asarray(k, dtype=np.float64).ravel()
     if a.size == 4:
@@ -111,7 +142,7 @@ class StereoDefects:
                 disp[~np.isfinite(disp) | (disp <= 0)] = np.nan
                 source = "array"
             else:
-                disp = load_disparity(src, p.disparity_scale)
+                disp = _read_disparity(Path(src), p.disparity_scale, transformed_in)
                 source = str(src)
         elif inputs.get("left") is not None and inputs.get("right") is not None:
             lname = "left image (array)" if isinstance(inputs["left"], np.ndarray) else str(inputs["left"])
