@@ -16,6 +16,7 @@ from rich.table import Table
 from .errors import RoadtwinError
 
 MAX_RESOLUTION_M = 2.0
+MAX_COORD_M = 1e7
 
 
 def comparison_table(results: Iterable, title: str = "path planning") -> Table:
@@ -67,6 +68,11 @@ def plan(
         raise RoadtwinError(f"--resolution must be within 0..{MAX_RESOLUTION_M:g} m, got {resolution}")
     if not math.isfinite(max_g) or max_g < 0:
         raise RoadtwinError(f"--max-g must be a finite number >= 0, got {max_g}")
+    from .planning import parse_pose
+
+    for what, text in (("--start", start), ("--goal", goal)):
+        if text is not None and max(map(abs, parse_pose(text, what))) > MAX_COORD_M:
+            raise RoadtwinError(f"{what} {text!r} is absurdly far (coordinates beyond {MAX_COORD_M:g} m)")
     names = None if all_planners else [planner or "hybrid_astar"]
     run = plan_stage(stage, out, planners=names, start=start, goal=goal, collision=collision,
                      resolution=resolution, seed=seed, sweep=sweep, max_g=max_g)

@@ -28,6 +28,7 @@ The renderer is a plugin, found by name (``--renderer``, default ``warp``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 import time
@@ -63,7 +64,10 @@ MAX_FRAMES = 1_000_000
 
 def check_range(option: str, value, lo: float, hi: float, unit: str = "") -> None:
     """A numeric option must be finite and within [lo, hi] (NaN fails every comparison)."""
-    ok = value is not None and np.isfinite(value) and lo <= value <= hi
+    try:
+        ok = value is not None and math.isfinite(float(value)) and lo <= value <= hi
+    except (TypeError, ValueError, OverflowError):   # e.g. an int beyond float range
+        ok = False
     if not ok:
         unit = f" {unit}" if unit else ""
         raise RoadtwinError(f"{option} must be within {lo:g}..{hi:g}{unit}, got {value}")

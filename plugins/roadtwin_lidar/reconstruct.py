@@ -101,9 +101,7 @@ def _read_frame(p: Path, suffix: str) -> tuple[np.ndarray, np.ndarray | None]:
         if "positions" not in pc.point:
             raise RoadtwinError(f"{p}: empty or unreadable point cloud (no points read)")
         pts = pc.point["positions"].numpy().astype(np.float64)
-        declared = _declared_points(p, suffix)
-        if declared is not None and declared != len(pts):
-            raise RoadtwinError(f"{p}: truncated: the header declares {declared} points, {len(pts)} were read")
+        _check_complete(p, suffix, len(pts))
         for lk in ("label", "labels", "semantic"):
             if lk in pc.point:
                 labels = pc.point[lk].numpy().ravel().astype(np.int64)
@@ -117,14 +115,25 @@ def _real(a: np.ndarray, p: Path) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
 
 
-def _declared_points(p: Path, suffix: str) -> int | None:
-    """The point count a PLY (``element vertex N``) or PCD (``POINTS N``) header declares."""
+def _check_complete(p: Path, suffix: str, n_read: int) -> None:
+    """open3d pads a truncated file's missing points with zeros: compare the point count the
+    header declares (PLY ``element vertex N``, PCD ``POINTS N``) with what the body holds
+    (ASCII: data lines; binary: at least 12 bytes, three float32, a point)."""
     import re
 
-    with open(p, "rb") as fh:
-        head = fh.read(4096).decode("latin-1")
+    raw = p.read_bytes()
+    head = raw[:65536].decode("latin-1")
     m = re.search(r"^element vertex (\d+)" if suffix == ".ply" else r"^POINTS (\d+)", head, re.M)
-    return int(m.group(1)) if m else None
+    end = re.search(r"^end_header\s*$" if suffix == ".ply" else r"^DATA \w+\s*$", head, re.M)
+    if m is None or end is None:
+        return
+    declared = int(m.group(1))
+    ascii_body = re.search(r"^format ascii" if suffix == ".ply" else r"^DATA ascii", head, re.M) is not None
+    body = raw[end.end():]
+    held = (len([ln for ln in body.split(b"\n") if ln.strip()]) if ascii_body else len(body) // 12)
+    if held < declared or n_read != declared:
+        raise RoadtwinError(f"{p}: truncated: the header declares {declared} points, the file holds "
+                            f"{min(held, n_read)}")
 
 
 def load_poses(path: str | Path) -> np.ndarray:
