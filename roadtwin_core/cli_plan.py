@@ -64,8 +64,8 @@ def plan(
     if seed < 0:
         raise RoadtwinError(f"--seed must be >= 0, got {seed}")
     # a cell wider than a lane cannot tell a wheel path from a defect: the grid is meaningless
-    if not (math.isfinite(resolution) and 0 < resolution <= MAX_RESOLUTION_M):
-        raise RoadtwinError(f"--resolution must be within 0..{MAX_RESOLUTION_M:g} m, got {resolution}")
+    if math.isfinite(resolution) and resolution > MAX_RESOLUTION_M:   # the rest: plan_stage's checks
+        raise RoadtwinError(f"--resolution must be at most {MAX_RESOLUTION_M:g} m, got {resolution}")
     if not math.isfinite(max_g) or max_g < 0:
         raise RoadtwinError(f"--max-g must be a finite number >= 0, got {max_g}")
     from .planning import parse_pose
