@@ -83,7 +83,7 @@ def open_stage(path: str | Path, what: str = "USD stage", load=Usd.Stage.LoadAll
         try:
             stage = Usd.Stage.Open(str(path), load)
         except Tf.ErrorException as exc:
-            raise RoadtwinError(f"{path}: not a readable {what} ({first_error(exc)})") from None
+            raise RoadtwinError(f"{path}: not a USD file that can be read as a {what} ({first_error(exc)})") from None
         if stage is None:
             raise RoadtwinError(f"{path}: not a readable {what}")
         check_composition(stage, path)
