@@ -349,7 +349,10 @@ def _read_referencing(path: Path, blocks: dict, has_data: bool, chain: tuple[str
     try:
         crg = _read(target, chain, notes)
     except RoadtwinError as exc:
-        raise RoadtwinError(f"{exc} (referenced by {path})") from None
+        msg = str(exc)
+        if msg.endswith(")") and " (referenced by " in msg:  # nested: one list, innermost first
+            raise RoadtwinError(f"{msg[:-1]} <- {path})") from None
+        raise RoadtwinError(f"{msg} (referenced by {path})") from None
     if "ROAD_CRG_OPTS" in blocks:
         crg.options = _kv(blocks["ROAD_CRG_OPTS"], path, "ROAD_CRG_OPTS", notes)
     if "ROAD_CRG_MODS" in blocks:
@@ -520,6 +523,8 @@ def _assemble(values: np.ndarray, channels: list[str], road: dict, path: Path) -
     nrows = len(values)
     inc = float(road.get("reference_line_increment", 0.0) or 0.0)
     u0 = float(road.get("reference_line_start_u", 0.0))
+    if "reference_line_increment" in road and not inc > 0:
+        raise RoadtwinError(f"{path}: REFERENCE_LINE_INCREMENT must be positive, got {road['reference_line_increment']}")
     if not inc > 0:
         if "reference_line_end_u" in road and nrows > 1:
             inc = (float(road["reference_line_end_u"]) - u0) / (nrows - 1)
@@ -527,6 +532,7 @@ def _assemble(values: np.ndarray, channels: list[str], road: dict, path: Path) -
             raise RoadtwinError(f"{path}: $ROAD_CRG needs a positive REFERENCE_LINE_INCREMENT")
     if "reference_line_end_u" in road:
         expect = (float(road["reference_line_end_u"]) - u0) / inc + 1
+        _too_large(path, expect, len(channels))
         if abs(expect - nrows) > 1e-6 * max(1.0, expect):
             raise RoadtwinError(f"{path}: {nrows} data rows, but REFERENCE_LINE_START_U/END_U/INCREMENT give "
                                 f"{expect:g} (truncated?)")
