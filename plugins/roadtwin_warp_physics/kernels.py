@@ -71,6 +71,18 @@ PKSTOP, PCSTOP, PIMUX, PIMUY, PIMUZ, PCGH, PC0, PCSTRIDE = (_P[k] for k in ("KST
                                                                           "CGH", "C0", "CS"))
 GRAV = wp.constant(GRAVITY)
 
+# Compile time (issue #12): nothing here is differentiated, so no backward pass (it more than
+# doubled the generated code); and each kernel is its own warp module, so a launch compiles that
+# kernel alone, for the block size it is launched with (one shared module was compiled whole,
+# every kernel with it, once per block size used: 256, 128 and 32 on CUDA).
+wp.set_module_options({"enable_backward": False})
+_NO_GRAD = {"enable_backward": False}
+
+
+def kernel(f):
+    """``wp.kernel`` in a module of its own, forward only."""
+    return wp.kernel(f, enable_backward=False, module="unique", module_options=_NO_GRAD)
+
 
 def quiet() -> None:
     """No init banner or per-module load lines (warnings still show)."""
@@ -289,7 +301,7 @@ def slice_contact(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, i: int, j:
     return out
 
 
-@wp.kernel
+@kernel
 def contact_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, slices: wp.array2d(dtype=wp.vec4)):
     """One thread per tire slice of every vehicle."""
     i, j = wp.tid()
@@ -466,7 +478,7 @@ def advance_full(fl: Fleet, st: State, cfg: Config, out: Output, i: int, slices:
                                      fl.params[pi, PC0 + 2 * PCSTRIDE + 7], fl.params[pi, PC0 + 3 * PCSTRIDE + 7])
 
 
-@wp.kernel
+@kernel
 def step_kernel(fl: Fleet, st: State, cfg: Config, out: Output, slices: wp.array2d(dtype=wp.vec4)):
     i = wp.tid()
     if st.dead[i] != 0 or st.step[i] >= fl.nsteps[i]:
@@ -474,7 +486,7 @@ def step_kernel(fl: Fleet, st: State, cfg: Config, out: Output, slices: wp.array
     advance_full(fl, st, cfg, out, i, slices)
 
 
-@wp.kernel
+@kernel
 def fused_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Output,
                  slices: wp.array2d(dtype=wp.vec4), nsub: int):
     """CPU path: one thread integrates its vehicle ``nsub`` steps, casting its rays inline."""
@@ -489,7 +501,7 @@ def fused_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Output
         advance_full(fl, st, cfg, out, i, slices)
 
 
-@wp.kernel
+@kernel
 def init_full_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, ztop: float):
     """Static pose over the road: heave/roll/pitch from the road heights under the 4 wheels,
     springs at their static compression, no vertical motion."""
@@ -536,7 +548,7 @@ def init_full_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, ztop: f
     st.gyro_sum[i] = wp.vec3()
 
 
-@wp.kernel
+@kernel
 def set_state_kernel(st: State, q: wp.array(dtype=wp.vec3), qd: wp.array(dtype=wp.vec3),
                      s: wp.array(dtype=wp.vec4), sd: wp.array(dtype=wp.vec4), mask: wp.array(dtype=wp.int32)):
     """Override the initial state of vehicles whose mask is 1 (validation tests)."""
@@ -549,7 +561,7 @@ def set_state_kernel(st: State, q: wp.array(dtype=wp.vec3), qd: wp.array(dtype=w
     st.sd[i] = sd[i]
 
 
-@wp.kernel
+@kernel
 def fix_vimu_kernel(fl: Fleet, st: State, cfg: Config):
     """Recompute the IMU reference velocity after a state override."""
     i = wp.tid()
@@ -568,7 +580,7 @@ def fix_vimu_kernel(fl: Fleet, st: State, cfg: Config):
 
 
 # ----------------------------------------------------------------------------- quarter car
-@wp.kernel
+@kernel
 def quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Output, nsub: int):
     i = wp.tid()
     pi = fl.pidx[i]
@@ -625,7 +637,7 @@ def quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Outp
             out.susp[i, k] = wp.vec4(comp - sstat, 0.0, 0.0, 0.0)
 
 
-@wp.kernel
+@kernel
 def init_quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, ztop: float):
     i = wp.tid()
     pi = fl.pidx[i]
