@@ -64,3 +64,36 @@ def test_warp_events_closed_form_and_device_frames():
         sim.step(img, 0.01)
     with pytest.raises(ValueError, match="event camera is 3x2"):
         sim.step(np.zeros((3, 3), np.float32), 0.02)
+
+
+def test_renderer_events_where_the_frames_are_match_reference_on_rendered_frames():
+    """``WarpRenderer.render_events`` (what ``roadtwin render --events`` uses on CUDA: each view
+    shaded and read by the event camera in device memory) against the numpy reference on the
+    same renderer's frames, run here on warp's CPU device; on CPU it defers (returns None)."""
+    import roadtwin_warp_render
+    from roadtwin_core.render import Camera, Intrinsics, RenderParams, build_render_mesh, look_from
+    from roadtwin_core.usd.town_reader import TownMesh, TownScene
+
+    s = TownScene("Test", "test")
+    x, y = np.meshgrid(np.linspace(-20, 20, 41), np.linspace(-20, 20, 41))   # a corrugated road: shading edges
+    v = np.column_stack([x.ravel(), y.ravel(), 0.3 * np.sin(1.3 * x.ravel()) + 0.2 * np.cos(y.ravel())])
+    i, j = np.meshgrid(np.arange(40), np.arange(40))
+    a = (j * 41 + i).ravel()
+    f = np.concatenate([np.column_stack([a, a + 1, a + 42]), np.column_stack([a, a + 42, a + 41])])
+    s.roads = [TownMesh("/Test/Roads/seg0", "driving", v, f)]
+    town = build_render_mesh(s)
+    intr = Intrinsics.from_fov(24, 16, 70.0)
+    cams = [Camera(intr, look_from((0.4 * k, 0.1 * k, 1.5), 0.2, math.radians(-35))) for k in range(5)]
+    times = 0.002 * np.arange(5)
+    params = RenderParams(shadows=False, device="cpu", backend="warp")
+    rend = roadtwin_warp_render.WarpRenderer()
+    assert rend.render_events(town, cams, times, params, seed=2) is None
+    got, sim_params = rend.render_events(town, cams, times, params, any_device=True, seed=2, threshold=0.1)
+    ref = EventSimulator(24, 16, seed=2, threshold=0.1)
+    want = [ref.step(fr.rgb, float(t)) for fr, t in zip(rend.render(town, cams, params.__class__(
+        **{**params.__dict__, "shade": True})), times)]
+    want = {k: np.concatenate([w[k] for w in want]) for k in ("x", "y", "t", "p")}
+    assert len(want["t"]) > 50 and sim_params == ref.params()
+    for k in ("x", "y", "p"):
+        np.testing.assert_array_equal(got[k], want[k])
+    np.testing.assert_allclose(got["t"], want["t"], rtol=0, atol=1e-12)

@@ -210,6 +210,11 @@ class WarpEventSimulator:
         self.capacity = cap
 
     def _frame(self, frame) -> wp.array:
+        if isinstance(frame, wp.array) and frame.dtype == wp.vec3 and frame.ndim == 1 and frame.device == self.device \
+                and frame.shape[0] == self.width * self.height and frame.is_contiguous:
+            # the renderer's RGB buffer (one vec3 per pixel, row-major): read in place, no copy
+            self._held = frame
+            return wp.array(ptr=frame.ptr, dtype=wp.float32, shape=(self.height, self.width, 3), device=self.device)
         if isinstance(frame, wp.array):
             shape = frame.shape
             arr = frame
@@ -275,4 +280,6 @@ class WarpEventSimulator:
     def step(self, frame, t: float) -> dict[str, np.ndarray]:
         """Events between the previous frame and this one at time ``t`` (s): numpy x, y, t, p."""
         ev, _count = self.step_device(frame, t)
+        if self.device.is_cpu:   # CPU arrays' numpy() are views of buffers the next step reuses
+            return {k: v.numpy().copy() for k, v in ev.items()}
         return {k: v.numpy() for k, v in ev.items()}
