@@ -126,8 +126,9 @@ class WarpRenderer:
         prepared, cameras, params, light, material_look = self._setup(scene, cameras, params, look)
         return self._frames(prepared, cameras, params, light, material_look)
 
-    def render_events(self, scene, cameras: Sequence[Camera], times: Sequence[float], params: RenderParams | None = None,
-                      progress=None, any_device: bool = False, **camera) -> tuple[dict, dict] | None:
+    def render_events(self, scene, cameras: Sequence[Camera], times: Sequence[float],
+                      params: RenderParams | None = None, progress=None, any_device: bool = False,
+                      **camera) -> tuple[dict, dict] | None:
         """The event stream of a drive (``cameras`` at ``times``), simulated where the frames are:
         on a CUDA device each view is shaded and handed to the warp event camera in device memory
         (same events as ``roadtwin_core.render.EventSimulator``; ``camera``: its keyword
