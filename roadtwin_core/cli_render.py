@@ -336,15 +336,23 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
         t_frames = time.perf_counter()
         n_events = 0
         if ev_iter is not None:
-            sim = EventSimulator(ev_w, ev_h, threshold=event_threshold, seed=seed)
-            ev_chunks = []
-            for k, (frame, t) in enumerate(zip(ev_iter, ev_times)):
-                ev_chunks.append(sim.step(frame.rgb, float(t)))
-                report("events", k + 1, len(ev_times))
-            ev = {key: np.concatenate([c[key] for c in ev_chunks]) for key in ("x", "y", "t", "p")}
+            # a renderer that keeps frames on a GPU simulates the events there (same events)
+            on_device = getattr(rend, "render_events", None)
+            got = on_device(prepared, [Camera(ev_intr, p) for p in ev_poses], ev_times, params,
+                            progress=lambda k, n: report("events", k, n), threshold=event_threshold,
+                            seed=seed) if on_device else None
+            if got is None:
+                sim = EventSimulator(ev_w, ev_h, threshold=event_threshold, seed=seed)
+                ev_chunks = []
+                for k, (frame, t) in enumerate(zip(ev_iter, ev_times)):
+                    ev_chunks.append(sim.step(frame.rgb, float(t)))
+                    report("events", k + 1, len(ev_times))
+                ev = {key: np.concatenate([c[key] for c in ev_chunks]) for key in ("x", "y", "t", "p")}
+                got = ev, sim.params()
+            ev, sim_params = got
             n_events = len(ev["t"])
             writer.write_events(ev, ev_times, ev_poses, (ev_w, ev_h),
-                                {**sim.params(), "speed_mps": speed, "rate_hz": event_rate})
+                                {**sim_params, "speed_mps": speed, "rate_hz": event_rate})
         t_events = time.perf_counter()
         summary = {
             "stage": str(stage), "renderer": renderer, "frames": len(cams), "size": [intr.width, intr.height],

@@ -42,8 +42,8 @@ __all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "
 @dataclass
 class StereoDefectsParams:
     k_grow: float = field(3.0, lo=0.5, doc="candidate pixels: deviation below the road > k_grow robust sigma")
-    k_seed: float = field(10.0, lo=0.5, doc="a defect needs seed pixels deeper than k_seed robust sigma")
-    min_area_frac: float = field(0.002, lo=0.0, hi=1.0, doc="seed pixels a defect needs (fraction of the image)")
+    k_seed: float = field(10.0, lo=0.5, doc="a defect's peak depth exceeds k_seed road-noise sigmas")
+    min_area_frac: float = field(0.0, lo=0.0, hi=1.0, doc="optional floor on a defect's area (fraction of the image)")
     grid_m: float = field(0.01, lo=1e-4, hi=1.0, doc="grid sampling step of the defect mesh (m)")
     disparity_scale: float = field(1.0, lo=1e-9, doc="integer disparity PNGs are divided by this (KITTI: 256)")
     max_disparity: int = field(128, lo=16, hi=1024, doc="SGBM disparity range (px)")
