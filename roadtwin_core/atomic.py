@@ -75,22 +75,6 @@ def make_parent(path: str | Path) -> Path:
     return path
 
 
-def check_output_path(path: str | Path, folder: bool = False) -> Path:
-    """Refuse, before any work, an output that cannot be written: a file output that is a
-    directory (a folder output that is a file), or a path through a regular file. Creates nothing."""
-    path = Path(path)
-    if not folder and path.is_dir():
-        raise RoadtwinError(f"{path}: is a directory (expected an output file)")
-    if folder and path.exists() and not path.is_dir():
-        raise RoadtwinError(f"{path}: exists and is not a directory")
-    up = path.parent
-    while not up.exists() and up != up.parent:
-        up = up.parent
-    if not up.is_dir():
-        raise RoadtwinError(f"{path}: cannot be written: {up} is a file, not a folder")
-    return path
-
-
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")

@@ -56,9 +56,9 @@ def plan(
     """Plan a path around road defects: grid maps of the stage, planner(s), metrics, plots, USD curve."""
     from .planning import PlanFailure, plan_stage
 
-    from .atomic import check_output_path
+    from .usd.checks import output_path
 
-    check_output_path(out, folder=True)
+    output_path(out, "dir")
     if all_planners and planner is not None:
         raise RoadtwinError("give --planner NAME or --all, not both")
     if seed < 0:

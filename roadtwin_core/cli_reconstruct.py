@@ -16,7 +16,6 @@ import numpy as np
 import typer
 from ._console import console
 
-from .atomic import check_output_path
 from .errors import RoadtwinError
 
 
@@ -54,7 +53,9 @@ def reconstruct_defects(
     from .params import make_params
     from .plugins import get_plugin_manager
 
-    check_output_path(out, folder=True)
+    from .usd.checks import output_path
+
+    output_path(out, "dir")
     if disparity is not None and (left is not None or right is not None):
         raise RoadtwinError("give --disparity or --left/--right, not both")
     for p in (disparity, left, right):
@@ -130,7 +131,9 @@ def reconstruct_surface(
     k = _floats(K, (4,), "--K")
     if out.suffix not in (".usda", ".usd", ".usdc"):
         raise RoadtwinError(f"{out}: the surface asset must be a .usda, .usd or .usdc file")
-    check_output_path(out)
+    from .usd.checks import output_path
+
+    output_path(out)
     labels = None
     if road_labels.strip().lower() not in ("", "all", "none"):
         values = _floats(road_labels, tuple(range(1, 257)), "--road-labels")

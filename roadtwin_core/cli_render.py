@@ -137,9 +137,9 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     t0 = time.perf_counter()
     report = progress or (lambda *_: None)
     stage = Path(stage)
-    from .atomic import check_output_path
+    from .usd.checks import output_path
 
-    check_output_path(out, folder=True)
+    output_path(out, "dir")
     preset = rig_preset(rig) if rig is not None else None
     size_text = size if size is not None else (f"{preset.width}x{preset.height}" if preset else "640x480")
     width, height_px = parse_size(size_text)
