@@ -13,7 +13,8 @@ in-process) and must end in
 
 never a traceback, never "internal error", never a partial or temporary output, never a changed
 input (the inputs a case names are hashed before and after). Case ids start with the command
-name: ``pytest --collect-only -q tests/test_hostile_cmds.py`` lists them per command.
+name: ``pytest --collect-only tests/test_hostile_cmds.py`` lists them (the project's addopts
+already add -q; a second -q only prints the total).
 """
 from __future__ import annotations
 
