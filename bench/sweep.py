@@ -143,6 +143,8 @@ def main() -> None:
     ap.add_argument("--arcs", type=int, default=7, help="rays per slice over the lower arc")
     ap.add_argument("--refine", type=int, default=2, help="bisection rounds (2 rays each) around each slice's deepest ray")
     ap.add_argument("--dt", type=float, default=1e-3, help="time step (s)")
+    ap.add_argument("--cache-dir", default=None, help="warp kernel cache folder (default: warp's, WARP_CACHE_PATH or "
+                    "~/.cache/warp/VERSION); an empty one measures a first run's compile")
     ap.add_argument("--save", default=None, help="save the first 8 vehicles' IMU traces (.npz), to compare devices")
     args = ap.parse_args()
     cuda = args.device.startswith("cuda")
@@ -154,7 +156,12 @@ def main() -> None:
     import warp as wp
 
     K.quiet()
+    if args.cache_dir:
+        wp.config.kernel_cache_dir = args.cache_dir
     wp.init()
+    cache = Path(wp.config.kernel_cache_dir)
+    cached = sorted(p.name for p in cache.iterdir()) if cache.is_dir() else []
+    print(f"warp {wp.config.version}, kernel cache {cache}: {len(cached)} module(s) cached before this run")
     car = VP.VehicleParams().check().to_plain()
     v, f, road_y, note = get_mesh(args.mesh, small=not cuda and args.mesh is None)
     length = float(v[:, 0].max())
@@ -172,8 +179,15 @@ def main() -> None:
             "tire_refine": args.refine}
     bvh = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sim.run(runs[: min(n, 4)], **opts) if not cuda else sim.run([dict(r, duration=0.2) for r in runs], **opts)
+    first = (sim.run(runs[: min(n, 4)], **opts) if not cuda else
+             sim.run([dict(r, duration=0.2) for r in runs], **opts))
     warm = time.perf_counter() - t0
+    compile_s = first["compile_s"] if cuda else warm   # CPU: compile + the short warm-up run
+    new = sorted(p.name for p in cache.iterdir() if p.name not in cached) if cache.is_dir() else []
+    print(f"compile: {compile_s:.1f} s for the kernels of this run ({len(new)} module variant(s) compiled into the "
+          f"cache: {', '.join(new) or 'none, all read from the cache'})")
+    figures["compile_s"] = compile_s
+    figures["compiled_modules"] = new
     res = sim.run(runs, **opts)
     rtf_w = res["sim_s"] / res["wall_s"]
     dead = int(np.sum(res["dead"]))

@@ -16,7 +16,7 @@ def atomic_output_dir(outdir: str | Path):
     outdir = Path(outdir).resolve()
     if outdir.exists() and not outdir.is_dir():
         raise RoadtwinError(f"{outdir}: exists and is not a directory")
-    outdir.parent.mkdir(parents=True, exist_ok=True)
+    make_parent(outdir)
     remove_stale(outdir)
     tmp = outdir.parent / f".{outdir.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
@@ -60,6 +60,19 @@ def remove_stale(outdir: Path) -> list[Path]:
             shutil.rmtree(path, ignore_errors=True)
             removed.append(path)
     return removed
+
+
+def make_parent(path: str | Path) -> Path:
+    """Create the folder an output goes into; a path through a regular file (or any other reason
+    the folder cannot be made) is the user's mistake, one line naming the output."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RoadtwinError(f"{path}: cannot create its folder ({exc.strerror or exc})") from None
+    if not path.parent.is_dir():
+        raise RoadtwinError(f"{path}: its folder {path.parent} is not a directory")
+    return path
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

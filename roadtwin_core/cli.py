@@ -57,6 +57,9 @@ def compose(
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from .compose import compose as run_compose
+    from .usd.checks import output_path
+
+    output_path(out, "dir")
 
     # Only on a terminal: rich's transient Live still prints a blank line to a pipe or file, and
     # bad input must leave exactly one line on stderr.
@@ -91,8 +94,11 @@ def compose(
 @app.command()
 def validate(stage: Path = typer.Argument(..., help="USD stage to check")) -> None:
     """Run pxr.UsdValidation on a stage and print the findings; exit 1 on errors."""
+    from .usd.checks import check_stage_meshes, open_stage
     from .usd.validate import validate_stage
 
+    # unreadable, badly composed or malformed input: one line, exit 2 (the findings are for the rest)
+    check_stage_meshes(open_stage(stage, default_prim=False), stage)
     findings = validate_stage(stage)
     for f in findings:
         console.print(f"{f.severity}: {f.validator}: {f.message} {' '.join(f.sites)}", highlight=False)
@@ -111,10 +117,12 @@ def export(
     """Export a composed stage to another tool's format, keeping road and defects apart."""
     from .plugins import get_plugin_manager
 
+    from .usd.checks import check_stage_meshes, open_stage, output_path
+
     exporter = get_plugin_manager().get("exporters", format)
-    if not stage.exists():
-        raise RoadtwinError(f"{stage}: no such file")
-    target = out or stage.with_suffix(exporter.suffix)
+    # unreadable, badly composed or malformed input: one line naming it, exit 2
+    check_stage_meshes(open_stage(stage, "composed town stage"), stage)
+    target = output_path(out or stage.with_suffix(exporter.suffix))
     path = exporter.export(stage, target)
     console.print(f"wrote {path}")
 
@@ -128,14 +136,23 @@ def import_layout(
     """Import a foreign road network (e.g. OpenDRIVE) as a roadtwin layout."""
     import os as _os
 
+    from pxr import Sdf
+
     from .plugins import get_plugin_manager
+    from .usd.checks import output_path
     from .usd.layout_io import write_layout
 
     imp = get_plugin_manager().get("layout_importers", importer)
     if not source.exists():
         raise RoadtwinError(f"{source}: no such file")
+    if Sdf.FileFormat.FindByExtension(out.suffix.lstrip(".").lower() or "-") is None:
+        raise RoadtwinError(f"{out}: a layout must be a USD file (.usda, .usd or .usdc)")
+    output_path(out)
     layout = imp.load(source, None)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RoadtwinError(f"{out}: cannot create its folder ({exc.strerror})") from None
     tmp = out.with_name(f".{out.stem}.tmp-{_os.getpid()}{out.suffix}")
     try:
         write_layout(layout, tmp, f"roadtwin layout imported from {source.name} by {importer}")

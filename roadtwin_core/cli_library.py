@@ -62,13 +62,10 @@ def read_interface(path: Path) -> dict:
     """Root-prim attributes, labels and payload paths of an asset, geometry not loaded."""
     from pxr import Usd, UsdGeom
 
-    try:
-        stage = Usd.Stage.Open(str(path), Usd.Stage.LoadNone)
-    except Exception as exc:  # pxr raises Tf errors with multi-line text
-        raise RoadtwinError(f"{path}: not a USD file ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None
-    root = stage.GetDefaultPrim() if stage else None
-    if not root:
-        raise RoadtwinError(f"{path}: no defaultPrim")
+    from .usd.checks import open_stage
+
+    stage = open_stage(path, "defect asset", load=Usd.Stage.LoadNone)
+    root = stage.GetDefaultPrim()
     if not root.HasAttribute("roadtwin:defect:type"):
         raise RoadtwinError(f"{path}: not a defect asset (no roadtwin:defect:type on {root.GetPath()})")
     attrs = {}
@@ -189,7 +186,13 @@ def add_asset(src: Path, folder: Path, force: bool = False) -> Path:
     info = read_interface(src)
     read_defect_asset(src)  # geometry, boundary loop and flags must read too
     payloads = _payload_files(src, info)
-    folder.mkdir(parents=True, exist_ok=True)
+    from .usd.checks import output_path
+
+    output_path(folder, "dir")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RoadtwinError(f"{folder}: cannot create the library folder ({exc.strerror})") from None
     targets = [(p, folder / p.name) for p in payloads] + [(src, folder / src.name)]
     if src.resolve().parent == folder.resolve():
         raise RoadtwinError(f"{src}: already in library {folder}")

@@ -5,6 +5,7 @@ Registered in :mod:`roadtwin_core.cli` with ``app.command()(plan)``. Bad input r
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Iterable, Optional
 
@@ -14,6 +15,8 @@ from rich.table import Table
 
 from .errors import RoadtwinError
 
+MAX_RESOLUTION_M = 2.0
+MAX_COORD_M = 1e7
 
 
 def comparison_table(results: Iterable, title: str = "path planning") -> Table:
@@ -53,10 +56,23 @@ def plan(
     """Plan a path around road defects: grid maps of the stage, planner(s), metrics, plots, USD curve."""
     from .planning import PlanFailure, plan_stage
 
+    from .usd.checks import output_path
+
+    output_path(out, "dir")
     if all_planners and planner is not None:
         raise RoadtwinError("give --planner NAME or --all, not both")
     if seed < 0:
         raise RoadtwinError(f"--seed must be >= 0, got {seed}")
+    # a cell wider than a lane cannot tell a wheel path from a defect: the grid is meaningless
+    if math.isfinite(resolution) and resolution > MAX_RESOLUTION_M:   # the rest: plan_stage's checks
+        raise RoadtwinError(f"--resolution must be at most {MAX_RESOLUTION_M:g} m, got {resolution}")
+    if not math.isfinite(max_g) or max_g < 0:
+        raise RoadtwinError(f"--max-g must be a finite number >= 0, got {max_g}")
+    from .planning import parse_pose
+
+    for what, text in (("--start", start), ("--goal", goal)):
+        if text is not None and max(map(abs, parse_pose(text, what))) > MAX_COORD_M:
+            raise RoadtwinError(f"{what} {text!r} is absurdly far (coordinates beyond {MAX_COORD_M:g} m)")
     names = None if all_planners else [planner or "hybrid_astar"]
     run = plan_stage(stage, out, planners=names, start=start, goal=goal, collision=collision,
                      resolution=resolution, seed=seed, sweep=sweep, max_g=max_g)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
 import typer
 from ._console import console
 
@@ -52,6 +53,9 @@ def reconstruct_defects(
     from .params import make_params
     from .plugins import get_plugin_manager
 
+    from .usd.checks import output_path
+
+    output_path(out, "dir")
     if disparity is not None and (left is not None or right is not None):
         raise RoadtwinError("give --disparity or --left/--right, not both")
     for p in (disparity, left, right):
@@ -127,8 +131,15 @@ def reconstruct_surface(
     k = _floats(K, (4,), "--K")
     if out.suffix not in (".usda", ".usd", ".usdc"):
         raise RoadtwinError(f"{out}: the surface asset must be a .usda, .usd or .usdc file")
-    labels = (None if road_labels.strip().lower() in ("", "all", "none")
-              else [int(v) for v in _floats(road_labels, tuple(range(1, 257)), "--road-labels")])
+    from .usd.checks import output_path
+
+    output_path(out)
+    labels = None
+    if road_labels.strip().lower() not in ("", "all", "none"):
+        values = _floats(road_labels, tuple(range(1, 257)), "--road-labels")
+        if not all(np.isfinite(v) and v == int(v) and 0 <= v < 2**32 for v in values):
+            raise RoadtwinError(f"--road-labels: label values are integers in 0..{2**32 - 1}, got {road_labels!r}")
+        labels = [int(v) for v in values]
     rec = get_plugin_manager().get("reconstructors", reconstructor)
     if getattr(rec, "produces", None) != "surface":
         raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce a surface")

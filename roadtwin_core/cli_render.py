@@ -28,6 +28,7 @@ The renderer is a plugin, found by name (``--renderer``, default ``warp``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import re
 import time
@@ -56,6 +57,20 @@ def parse_size(text: str, what: str = "--size") -> tuple[int, int]:
     if w > 16384 or h > 16384:
         raise RoadtwinError(f"{what} is too large (at most 16384 pixels a side), got {text!r}")
     return w, h
+
+
+MAX_FRAMES = 1_000_000
+
+
+def check_range(option: str, value, lo: float, hi: float, unit: str = "") -> None:
+    """A numeric option must be finite and within [lo, hi] (NaN fails every comparison)."""
+    try:
+        ok = value is not None and math.isfinite(float(value)) and lo <= value <= hi
+    except (TypeError, ValueError, OverflowError):   # e.g. an int beyond float range
+        ok = False
+    if not ok:
+        unit = f" {unit}" if unit else ""
+        raise RoadtwinError(f"{option} must be within {lo:g}..{hi:g}{unit}, got {value}")
 
 
 def parse_views(text: str | None) -> tuple[str, float | None, str]:
@@ -122,6 +137,9 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     t0 = time.perf_counter()
     report = progress or (lambda *_: None)
     stage = Path(stage)
+    from .usd.checks import output_path
+
+    output_path(out, "dir")
     preset = rig_preset(rig) if rig is not None else None
     size_text = size if size is not None else (f"{preset.width}x{preset.height}" if preset else "640x480")
     width, height_px = parse_size(size_text)
@@ -140,25 +158,23 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     runner = make_executor(executor, ray_address, workers)
     if workers is not None and workers < 1:
         raise RoadtwinError(f"--workers must be >= 1, got {workers}")
-    if frames < 1:
-        raise RoadtwinError(f"--frames must be >= 1, got {frames}")
-    if seed < 0:
-        raise RoadtwinError(f"--seed must be >= 0, got {seed}")
-    if not (height > 0 and np.isfinite(height)):
-        raise RoadtwinError(f"--height must be > 0 m, got {height}")
-    if pitch is not None and not -89.0 <= pitch <= 89.0:
-        raise RoadtwinError(f"--pitch must be within +-89 degrees, got {pitch}")
+    check_range("--frames", frames, 1, MAX_FRAMES)
+    check_range("--seed", seed, 0, 2**63 - 1)
+    check_range("--hfov", hfov, 1.0, 179.0, "degrees")
+    check_range("--height", height, 1e-3, 1000.0, "m")
+    if pitch is not None:
+        check_range("--pitch", pitch, -89.0, 89.0, "degrees")
     if weather not in WEATHERS:
         raise RoadtwinError(f"unknown weather {weather!r} (known: {', '.join(WEATHERS)})")
     intr = Intrinsics.from_fov(width, height_px, hfov)
-    if stereo and not (baseline > 0 and np.isfinite(baseline)):
-        raise RoadtwinError(f"--baseline must be > 0 m, got {baseline}")
+    if stereo:
+        check_range("--baseline", baseline, 1e-3, 100.0, "m")
     ev_w, ev_h = parse_size(event_size, "--event-size") if event_size else (width, height_px)
     if events:
-        if event_frames < 2:
-            raise RoadtwinError(f"--event-frames must be >= 2, got {event_frames}")
-        if not event_threshold > 0:
-            raise RoadtwinError(f"--event-threshold must be > 0, got {event_threshold}")
+        check_range("--event-frames", event_frames, 2, MAX_FRAMES)
+        check_range("--event-threshold", event_threshold, 1e-6, 100.0)
+        check_range("--speed", speed, 1e-3, 200.0, "m/s")
+        check_range("--event-rate", event_rate, 1e-3, 1e6, "Hz")
         try:
             import h5py  # noqa: F401
         except ImportError:
@@ -320,15 +336,23 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
         t_frames = time.perf_counter()
         n_events = 0
         if ev_iter is not None:
-            sim = EventSimulator(ev_w, ev_h, threshold=event_threshold, seed=seed)
-            ev_chunks = []
-            for k, (frame, t) in enumerate(zip(ev_iter, ev_times)):
-                ev_chunks.append(sim.step(frame.rgb, float(t)))
-                report("events", k + 1, len(ev_times))
-            ev = {key: np.concatenate([c[key] for c in ev_chunks]) for key in ("x", "y", "t", "p")}
+            # a renderer that keeps frames on a GPU simulates the events there (same events)
+            on_device = getattr(rend, "render_events", None)
+            got = on_device(prepared, [Camera(ev_intr, p) for p in ev_poses], ev_times, params,
+                            progress=lambda k, n: report("events", k, n), threshold=event_threshold,
+                            seed=seed) if on_device else None
+            if got is None:
+                sim = EventSimulator(ev_w, ev_h, threshold=event_threshold, seed=seed)
+                ev_chunks = []
+                for k, (frame, t) in enumerate(zip(ev_iter, ev_times)):
+                    ev_chunks.append(sim.step(frame.rgb, float(t)))
+                    report("events", k + 1, len(ev_times))
+                ev = {key: np.concatenate([c[key] for c in ev_chunks]) for key in ("x", "y", "t", "p")}
+                got = ev, sim.params()
+            ev, sim_params = got
             n_events = len(ev["t"])
             writer.write_events(ev, ev_times, ev_poses, (ev_w, ev_h),
-                                {**sim.params(), "speed_mps": speed, "rate_hz": event_rate})
+                                {**sim_params, "speed_mps": speed, "rate_hz": event_rate})
         t_events = time.perf_counter()
         summary = {
             "stage": str(stage), "renderer": renderer, "frames": len(cams), "size": [intr.width, intr.height],

@@ -54,11 +54,13 @@ def sweep(
     """Drive vehicles over defects at several speeds; write g/aw per run, IMU traces, plots and a
     recommended speed per defect."""
     from .atomic import atomic_output_dir
+    from .usd.checks import output_path
     from .plugins import get_plugin_manager
     from .vehicle import (QuarterCarParams, SimParams, SweepConfig, VehicleParams, load_vehicle, parse_offsets,
                           parse_speeds, run_sweep)
     from .vehicle.roads import load_town_scenario, straight_road_scenario
 
+    output_path(out, "dir")
     if (stage is None) == (surface is None):
         raise RoadtwinError("sweep: give either a STAGE or --surface iso8608:CLASS (not both, not neither)")
     speed_list = parse_speeds(speeds)

@@ -398,3 +398,100 @@ def test_export_curved_lane(arc_town, tmp_path):
     assert np.isfinite(zm).all()
     err = np.abs(surf.height(xy) - zm)
     assert np.sqrt(np.mean(err ** 2)) < 1e-3 and err.max() < 0.01
+
+
+# ----------------------------------------------------------------------------------------- references
+def _inline_mods(text: str, mods: str) -> str:
+    """``text`` with its own $ROAD_CRG_MODS block replaced by ``mods`` (placed before $KD_Definition)."""
+    text = re.sub(r"(?ms)^\$ROAD_CRG_MODS.*?(?=^\$)", "", text)
+    return re.sub(r"(?mi)^\$KD_Definition", lambda m: f"$ROAD_CRG_MODS\n{mods}\n$\n{m.group(0)}", text, count=1)
+
+
+@pytest.mark.parametrize("name", ["handmade_straight.crg", "handmade_platform.crg", "belgian_block.crg"])
+def test_reference_with_mods_equals_inline_mods(tmp_path, name):
+    """A file that only references NAME and sets its own MODS gives exactly the grid, reference
+    line and surface heights of NAME with those MODS written inline (the referenced file's own
+    MODS block is replaced whole, as ASAM's crg_read does)."""
+    mods = "GRID_NAN_MODE = 1\nGRID_NAN_OFFSET = -0.25"
+    sub = tmp_path / "data dir ü"
+    sub.mkdir()
+    (sub / name).write_bytes((DATA / name).read_bytes())
+    top = tmp_path / "top.crg"
+    # the name split over lines, with comments, as the standard allows
+    top.write_bytes(("$CT\nreferencing file\n$!\n$ROAD_CRG_FILE   ! data\n data dir ü/  ! folder\n* comment\n "
+                     f"{name}\n$!\n$ROAD_CRG_MODS\n{mods}\n$!\n").encode("utf-8"))
+    inline = tmp_path / "inline.crg"
+    raw = (DATA / name).read_bytes()
+    cut = raw.index(b"\n$$$$") + 1
+    inline.write_bytes(_inline_mods(raw[:cut].decode("latin-1"), mods).encode("latin-1") + raw[cut:])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        a, b = read_crg(top), read_crg(inline)
+        sa, sb = CrgSurface(a, warn=False), CrgSurface(b, warn=False)
+    assert a.modifiers == {"grid_nan_mode": 1.0, "grid_nan_offset": -0.25} == b.modifiers
+    assert a.source == str(top) and a.data_file == str(sub / name)
+    for key in ("u", "v", "z", "x", "y", "heading", "z_ref"):
+        assert np.array_equal(getattr(a, key), getattr(b, key), equal_nan=True), key
+    assert np.array_equal(sa.grid, sb.grid)
+    # independent reference for the NaN mode: missing cells became the offset, the rest as read
+    miss = np.isnan(b.z)
+    assert np.all(sa.grid[miss] == -0.25) and np.array_equal(sa.grid[~miss], b.z[~miss])
+
+
+def test_reference_keeps_referenced_mods_and_opts_without_own(tmp_path):
+    (tmp_path / "d.crg").write_bytes((DATA / "handmade_sloped_opts.crg").read_bytes())
+    (tmp_path / "top.crg").write_text("$ROAD_CRG_FILE\n d.crg\n$\n")
+    direct, via = read("handmade_sloped_opts.crg"), read_crg(tmp_path / "top.crg")
+    assert via.options == direct.options and via.options["border_mode_u"] == 2.0
+    assert np.array_equal(via.z, direct.z, equal_nan=True)
+
+
+def test_reference_errors_name_the_files(tmp_path):
+    (tmp_path / "a.crg").write_text("$ROAD_CRG_FILE\n sub/b.crg\n$\n")
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "b.crg").write_text("$ROAD_CRG_FILE\n ../a.crg\n$\n")
+    msg = _one_line_error(tmp_path / "a.crg", "reference cycle")
+    assert "b.crg" in msg
+    (tmp_path / "c.crg").write_text("$ROAD_CRG_FILE\n missing.crg\n$\n")
+    msg = _one_line_error(tmp_path / "c.crg", "cannot read")
+    assert "missing.crg" in msg and "referenced by" in msg
+
+
+@pytest.mark.parametrize("text,value", [("1.0D+01", 10.0), ("-2.5d-1", -0.25), ("2.000000000+e00", 2.0),
+                                        ("1.5-e02", 0.015), ("0.1234-105", 0.1234e-105), (".5", 0.5),
+                                        ("-.5", -0.5), ("5.", 5.0), ("1e3", 1000.0)])
+def test_number_forms(tmp_path, text, value):
+    """Header and data numbers in the forms ASAM examples and Fortran writers produce; a value
+    is compared with the float the text means, written by hand here."""
+    t = (DATA / "handmade_straight.crg").read_text("latin-1")
+    t = t.replace("$KD_Definition", f"$ROAD_CRG_MODS\nGRID_NAN_OFFSET = {text}\n$\n$KD_Definition", 1)
+    head, _, data = t.partition("\n$$$$")
+    sep, _, rows = data.partition("\n")
+    rows = rows.splitlines()
+    in_data = len(text) <= 10  # an LRFI field is 10 characters
+    if in_data:
+        rows[1] = text.rjust(10) + rows[1][10:]
+    p = tmp_path / "n.crg"
+    p.write_text(head + "\n$$$$" + sep + "\n" + "\n".join(rows) + "\n", "latin-1")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        crg = read_crg(p)
+    assert crg.modifiers["grid_nan_offset"] == value and (crg.z[1, 0] == value or not in_data)
+    well_formed = re.fullmatch(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", text) is not None
+    assert (len(caught) == 0) == well_formed  # only non-standard forms are reported
+
+
+@pytest.mark.parametrize("text", ["nan", "inf", "-Infinity", "0,5", "1e400", "one"])
+def test_header_numbers_refused(tmp_path, text):
+    p = _corrupt(tmp_path, "handmade_straight.crg",
+                 lambda t: t.replace("REFERENCE_LINE_INCREMENT = 1.0", f"REFERENCE_LINE_INCREMENT = {text}", 1))
+    _one_line_error(p, "REFERENCE_LINE_INCREMENT")
+
+
+def test_absurd_grid_size_names_the_size(tmp_path):
+    crg = read("handmade_curved.crg")
+    b = write_crg(tmp_path / "b.crg", crg, binary=True)
+    raw = b.read_bytes().replace(b"REFERENCE_LINE_END_U = 22.0", b"REFERENCE_LINE_END_U = 2200000000.0")
+    b.write_bytes(raw)
+    msg = _one_line_error(b, "too large")
+    assert re.search(r"2\.2e\+09 rows x 8 channels", msg)

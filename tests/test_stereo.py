@@ -26,10 +26,13 @@ except ImportError:  # editable install made before the plugin existed
     rs = importlib.import_module("roadtwin_stereo")
 from roadtwin_stereo.synthetic import BowlScene, hausdorff_to_bowl, mesh_samples  # noqa: E402
 
-# Measured 2026-11-21: 0.915 0.916 0.923 0.915 0.836, mean 0.901 (frame 5's label leaves out
-# the left third of the pothole that the disparity shows). Floors: measured minus ~0.01.
-F1_FLOOR_FRAME = 0.82
-F1_FLOOR_MEAN = 0.89
+# The detector's two label-chosen numbers (k_seed, depth_frac) are chosen by leave-one-out over
+# the 13 frames (bench/stereo_cv.py): every fold, including those holding out frames 01-05, chose
+# the shipped defaults, so the figures asserted here are held-out ones. Held-out F1 measured
+# 2026-11-24: 0.916 0.911 0.922 0.910 0.849 (frame 5's label leaves out the left third of the
+# pothole the disparity shows). Modest floors, well under the measured values.
+F1_FLOOR_FRAME = 0.80
+F1_FLOOR_MEAN = 0.85
 
 
 @pytest.fixture(scope="module")
@@ -220,3 +223,50 @@ def test_bad_input_files_one_line_nothing_written(monkeypatch, tmp_path):
     assert not (tmp_path / "new_out").exists()
     assert {p.name: p.read_bytes() for p in earlier.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["earlier", "in"]  # no temporary folders left
+
+
+def _true_pothole_mask(sc: BowlScene) -> np.ndarray:
+    """Closed form: the pixels whose ray meets the road inside the bowl's rim (r < R)."""
+    v, u = np.mgrid[0:sc.height, 0:sc.width].astype(float)
+    z = sc.depth_map()
+    ray = np.stack([(u - sc.K[0, 2]) / sc.f, (v - sc.K[1, 2]) / sc.f, np.ones_like(u)], -1) * z[..., None]
+    loc = sc.to_local(ray.reshape(-1, 3)).reshape(ray.shape)
+    return loc[..., 0] ** 2 + loc[..., 1] ** 2 < sc.radius ** 2
+
+
+# What changes between roads and days: roll, pitch (tilt), noise, disparity range (baseline),
+# pothole size from 0.5 % to ~40 % of the frame. The previous detector (fixed seed area, sigma over
+# every pixel) found nothing in the large-pothole case.
+SYNTHETIC_ROADS = {
+    "medium": dict(tilt_deg=30, roll_deg=0.0, radius=0.25, depth=0.05, noise=0.05),
+    "small_rolled_noisy": dict(tilt_deg=45, roll_deg=6.0, radius=0.08, depth=0.03, distance=2.0, noise=0.1),
+    "large_share": dict(tilt_deg=35, roll_deg=-4.0, radius=0.45, depth=0.06, noise=0.05),
+    "short_baseline": dict(tilt_deg=40, roll_deg=3.0, radius=0.2, depth=0.04, baseline=0.03, noise=0.02),
+    "long_baseline_rolled": dict(tilt_deg=25, roll_deg=-8.0, radius=0.2, depth=0.04, baseline=0.5, noise=0.1),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SYNTHETIC_ROADS))
+def test_synthetic_potholes_found_at_true_size(name):
+    kw = dict(SYNTHETIC_ROADS[name])
+    noise = kw.pop("noise")
+    sc = BowlScene(width=320, height=240, f=350.0, offset=(0.05, -0.03), **kw)
+    truth = _true_pothole_mask(sc)
+    dt, _ = rs.transform_disparity(sc.disparity(noise, seed=1))
+    lab = rs.segment_defects(dt)
+    pred = lab > 0
+    f1 = rs.f1_score(pred, truth)
+    print(name, "true px", int(truth.sum()), "found", int(pred.sum()), "F1", round(f1, 3))
+    assert lab.max() == 1  # one pothole, no false regions
+    assert f1 >= 0.85
+    assert 0.8 <= pred.sum() / truth.sum() <= 1.25  # neither missed nor grown into the road
+
+
+def test_segmentation_ignores_affine_rescaling():
+    """Fan et al.'s maps are min-max normalised per frame: any positive gain and offset of the
+    values must give the same pixels."""
+    sc = BowlScene(width=320, height=240, f=350.0, tilt_deg=35, roll_deg=4.0, offset=(0.05, -0.03))
+    dt, _ = rs.transform_disparity(sc.disparity(0.05, seed=4))
+    a = rs.segment_defects(dt) > 0
+    b = rs.segment_defects(dt * 731.0 + 12000.0) > 0
+    assert a.sum() > 0 and rs.f1_score(a, b) > 0.995

@@ -38,7 +38,7 @@ import numpy as np
 
 from roadtwin_core import RoadtwinError, SampledSurface, SurfaceModel, check_params, field, hookimpl
 
-from .reconstruct import (apply, fuse_frames, ground_alignment, intrinsics, load_extrinsic, load_frame, load_mask,
+from .reconstruct import (apply, check_points, fuse_frames, ground_alignment, intrinsics, load_extrinsic, load_frame, load_mask,
                           load_poses, local_heights, mask_road_points, surface_mesh)
 from .simulate import (RosetteScanner, path_poses, pothole_road_mesh, raycasting_scene, rosette_directions,
                        save_frames, simulate_scans, vertical_heights)
@@ -143,19 +143,8 @@ class LidarSurfaceReconstructor:
         for i, f in enumerate(frames_in):
             if isinstance(f, np.ndarray):
                 name = f"frame {i}"
-                pts = np.asarray(f, np.float64)
-                if pts.ndim != 2 or pts.shape[1] < 3:
-                    raise RoadtwinError(f"{name}: expected an (N, 3) point array, got shape {pts.shape}")
-                pts = pts[:, :3]
                 lab = None if labels_in is None else np.asarray(labels_in[i]).ravel()
-                if len(pts) == 0:
-                    raise RoadtwinError(f"{name}: empty point cloud")
-                fin = np.isfinite(pts).all(axis=1)
-                if not fin.any():
-                    raise RoadtwinError(f"{name}: no finite points (all NaN/inf)")
-                if lab is not None and len(lab) != len(pts):
-                    raise RoadtwinError(f"{name}: {len(lab)} labels for {len(pts)} points")
-                frames.append((pts[fin], None if lab is None else lab[fin]))
+                frames.append(check_points(np.asarray(f, np.float64), lab, name))
             else:
                 name = str(f)
                 frames.append(load_frame(f))
@@ -176,15 +165,21 @@ class LidarSurfaceReconstructor:
         road_labels = inputs.get("road_labels", DEFAULT_ROAD_LABELS)
         road_labels = None if road_labels is None else tuple(int(v) for v in road_labels)
         pts = fuse_frames(frames, poses, names, road_labels, poses_name)
-        if len(pts) < 3:
-            raise RoadtwinError(f"{self.name}: only {len(pts)} road points")
-        T = ground_alignment(pts, p.plane_distance_m, p.seed) if p.align else np.eye(4)
-        al = apply(T, pts)
-        if p.align:
-            al = al[np.abs(al[:, 2]) <= p.max_plane_offset_m]
-        verts, faces = surface_mesh(al, p.voxel_m, p.edge_factor, p.radius_m, p.max_neighbors, p.min_points,
-                                   p.slope_prior, p.curvature_prior)
         source = str(inputs.get("source") or (names[0] if len(names) == 1 else f"{names[0]} (+{len(names) - 1} frames)"))
+        try:  # what goes wrong from here on is the data's: name the input it came from
+            if len(pts) < 3:
+                raise RoadtwinError(f"only {len(pts)} road points")
+            T = ground_alignment(pts, p.plane_distance_m, p.seed) if p.align else np.eye(4)
+            al = apply(T, pts)
+            if p.align:
+                al = al[np.abs(al[:, 2]) <= p.max_plane_offset_m]
+            verts, faces = surface_mesh(al, p.voxel_m, p.edge_factor, p.radius_m, p.max_neighbors, p.min_points,
+                                       p.slope_prior, p.curvature_prior)
+        except RoadtwinError as exc:
+            raise RoadtwinError(f"{source}: {exc}") from None
+        except RuntimeError as exc:  # open3d refuses extents its voxel grid cannot index
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise RoadtwinError(f"{source}: cannot build the surface ({first})") from None
         stem = _safe_name(Path(names[0]).stem) if not isinstance(frames_in[0], np.ndarray) else "lidar"
         return LidarSurface(f"{stem}_surface", verts, faces, T, source,
                             {"reconstructor": self.name, "frames": len(frames), "points": int(len(pts)),

@@ -39,55 +39,101 @@ from roadtwin_core import RoadtwinError
 
 
 # ---------------------------------------------------------------------------- input
+MAX_COORD_M = 1e7  # a point farther than 10,000 km from the origin is a corrupt file
+
+
 def load_frame(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     """(N, 3) float64 points and optional (N,) integer labels of one frame file."""
     p = Path(path)
+    if p.is_dir():
+        raise RoadtwinError(f"{p}: is a directory, not a point cloud file")
     if not p.exists():
         raise RoadtwinError(f"{p}: no such point cloud file")
     suffix = p.suffix.lower()
+    if suffix not in (".npz", ".npy", ".ply", ".pcd", ".xyz", ".pts"):
+        raise RoadtwinError(f"{p}: unsupported point cloud format {suffix!r} (use .ply, .pcd, .npz, .npy)")
+    try:
+        pts, labels = _read_frame(p, suffix)
+    except RoadtwinError:
+        raise
+    except Exception as exc:  # numpy / zipfile / open3d raise many kinds on a corrupt file
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RoadtwinError(f"{p}: cannot read the point cloud ({first})") from None
+    return check_points(pts, labels, str(p))
+
+
+def check_points(pts: np.ndarray, labels: np.ndarray | None, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Shape, labels and finiteness of one frame; non-finite points are dropped."""
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise RoadtwinError(f"{name}: expected an (N, 3) point array, got shape {pts.shape}")
+    pts = pts[:, :3]
+    if labels is not None and len(labels) != len(pts):
+        raise RoadtwinError(f"{name}: {len(labels)} labels for {len(pts)} points")
+    if len(pts) == 0:
+        raise RoadtwinError(f"{name}: empty point cloud")
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.any():
+        raise RoadtwinError(f"{name}: no finite points (all NaN/inf)")
+    far = np.abs(pts[finite]).max()
+    if far > MAX_COORD_M:
+        raise RoadtwinError(f"{name}: a coordinate of {far:.3g} m is absurd (at most {MAX_COORD_M:g} m from the origin)")
+    return pts[finite], (None if labels is None else labels[finite])
+
+
+def _read_frame(p: Path, suffix: str) -> tuple[np.ndarray, np.ndarray | None]:
     labels = None
     if suffix == ".npz":
-        try:
-            with np.load(p) as z:
-                key = "points" if "points" in z.files else (z.files[0] if z.files else None)
-                if key is None:
-                    raise RoadtwinError(f"{p}: empty NPZ (expected an array 'points')")
-                pts = np.asarray(z[key], dtype=np.float64)
-                for lk in ("labels", "label", "semantic"):
-                    if lk in z.files:
-                        labels = np.asarray(z[lk]).ravel().astype(np.int64)
-                        break
-        except (ValueError, OSError) as exc:
-            raise RoadtwinError(f"{p}: cannot read NPZ ({exc})") from None
+        with np.load(p, allow_pickle=False) as z:
+            if "points" not in z.files:
+                raise RoadtwinError(f"{p}: no array 'points' in the NPZ (found: {', '.join(z.files) or 'none'})")
+            pts = _real(z["points"], p)
+            for lk in ("labels", "label", "semantic"):
+                if lk in z.files:
+                    labels = np.asarray(z[lk]).ravel().astype(np.int64)
+                    break
     elif suffix == ".npy":
-        try:
-            pts = np.asarray(np.load(p), dtype=np.float64)
-        except (ValueError, OSError) as exc:
-            raise RoadtwinError(f"{p}: cannot read NPY ({exc})") from None
-    elif suffix in (".ply", ".pcd", ".xyz", ".pts"):
+        pts = _real(np.load(p, allow_pickle=False), p)
+    else:
         import open3d as o3d
 
-        pc = o3d.t.io.read_point_cloud(str(p))
+        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+            pc = o3d.t.io.read_point_cloud(str(p))
         if "positions" not in pc.point:
-            raise RoadtwinError(f"{p}: empty point cloud (no points read)")
+            raise RoadtwinError(f"{p}: empty or unreadable point cloud (no points read)")
         pts = pc.point["positions"].numpy().astype(np.float64)
+        _check_complete(p, suffix, len(pts))
         for lk in ("label", "labels", "semantic"):
             if lk in pc.point:
                 labels = pc.point[lk].numpy().ravel().astype(np.int64)
                 break
-    else:
-        raise RoadtwinError(f"{p}: unsupported point cloud format {suffix!r} (use .ply, .pcd, .npz, .npy)")
-    if pts.ndim != 2 or pts.shape[1] < 3:
-        raise RoadtwinError(f"{p}: expected an (N, 3) point array, got shape {pts.shape}")
-    pts = pts[:, :3]
-    if labels is not None and len(labels) != len(pts):
-        raise RoadtwinError(f"{p}: {len(labels)} labels for {len(pts)} points")
-    if len(pts) == 0:
-        raise RoadtwinError(f"{p}: empty point cloud")
-    finite = np.isfinite(pts).all(axis=1)
-    if not finite.any():
-        raise RoadtwinError(f"{p}: no finite points (all NaN/inf)")
-    return pts[finite], (None if labels is None else labels[finite])
+    return pts, labels
+
+
+def _real(a: np.ndarray, p: Path) -> np.ndarray:
+    if a.dtype.kind not in "iuf":
+        raise RoadtwinError(f"{p}: points must be real numbers, got dtype {a.dtype}")
+    return np.asarray(a, dtype=np.float64)
+
+
+def _check_complete(p: Path, suffix: str, n_read: int) -> None:
+    """open3d pads a truncated file's missing points with zeros: compare the point count the
+    header declares (PLY ``element vertex N``, PCD ``POINTS N``) with what the body holds
+    (ASCII: data lines; binary: at least 12 bytes, three float32, a point)."""
+    import re
+
+    raw = p.read_bytes()
+    head = raw[:65536].decode("latin-1")
+    m = re.search(r"^element vertex (\d+)" if suffix == ".ply" else r"^POINTS (\d+)", head, re.M)
+    end = re.search(r"^end_header\s*$" if suffix == ".ply" else r"^DATA \w+\s*$", head, re.M)
+    if m is None or end is None:
+        return
+    declared = int(m.group(1))
+    ascii_body = re.search(r"^format ascii" if suffix == ".ply" else r"^DATA ascii", head, re.M) is not None
+    body = raw[end.end():]
+    held = (len([ln for ln in body.split(b"\n") if ln.strip()]) if ascii_body else len(body) // 12)
+    if held < declared or n_read != declared:
+        raise RoadtwinError(f"{p}: truncated: the header declares {declared} points, the file holds "
+                            f"{min(held, n_read)}")
 
 
 def load_poses(path: str | Path) -> np.ndarray:
@@ -95,10 +141,16 @@ def load_poses(path: str | Path) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     p = Path(path)
+    if p.is_dir():
+        raise RoadtwinError(f"{p}: is a directory, not a pose file")
     if not p.exists():
         raise RoadtwinError(f"{p}: no such pose file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RoadtwinError(f"{p}: cannot read the pose file ({exc})") from None
     poses = []
-    for n, line in enumerate(p.read_text().splitlines(), 1):
+    for n, line in enumerate(text.splitlines(), 1):
         s = line.split("#", 1)[0].replace(",", " ").split()
         if not s:
             continue
@@ -119,6 +171,11 @@ def load_poses(path: str | Path) -> np.ndarray:
             T[:3, 3] = v[1:4]
         else:
             raise RoadtwinError(f"{p}:{n}: expected 12 numbers (KITTI) or 8 (TUM: t x y z qx qy qz qw), got {len(v)}")
+        R = T[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-3) or np.linalg.det(R) < 0:
+            raise RoadtwinError(f"{p}:{n}: the pose's rotation is not a rotation (orthonormal, det +1)")
+        if np.abs(T[:3, 3]).max() > MAX_COORD_M:
+            raise RoadtwinError(f"{p}:{n}: the pose's position is absurdly far (beyond {MAX_COORD_M:g} m)")
         poses.append(T)
     if not poses:
         raise RoadtwinError(f"{p}: no poses")

@@ -7,7 +7,9 @@
 - Exporter ``crg`` (suffix ``.crg``): a composed town's road surface sampled along its longest
   driving lane into a 5 cm grid, written as KRBI; see ``export.py``.
 """
-from roadtwin_core import hookimpl
+import numpy as np
+
+from roadtwin_core import RoadtwinError, hookimpl
 
 from .crg import CRG, CrgSurface, fill_missing, read_crg, write_crg
 from .export import CrgExporter, drape, lane_chain, lane_crg
@@ -27,7 +29,12 @@ class CrgSurfaceSource:
     name = "crg"
 
     def load(self, arg, bounds, seed):
-        return CrgSurface.from_file(arg)
+        surface = CrgSurface.from_file(arg)
+        kept = int(np.isnan(surface.grid).sum())
+        if kept:  # GRID_NAN_MODE = 0: OpenCRG evaluates NaN there; a town's elevation cannot
+            raise RoadtwinError(f"{arg}: GRID_NAN_MODE 0 keeps {kept} missing cell(s); an elevation source needs "
+                                "heights everywhere (GRID_NAN_MODE 1 or 2 in $ROAD_CRG_MODS)")
+        return surface
 
 
 @hookimpl

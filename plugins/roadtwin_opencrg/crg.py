@@ -47,6 +47,7 @@ repair does not fit, the file is read as is with a warning.
 from __future__ import annotations
 
 import math
+import os
 import re
 import warnings
 from dataclasses import dataclass, field
@@ -92,7 +93,8 @@ class CRG:
     comments: list[str] = field(default_factory=list)
     fmt: str = "LDFI"
     v_explicit: bool = False
-    source: str = ""
+    source: str = ""      # the file read (a referencing file, if it was one)
+    data_file: str = ""   # the file the grid came from
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -129,18 +131,74 @@ class CRG:
 
 
 # ----------------------------------------------------------------------------------------- reading
-def _num(text: str, where: str) -> float | str:
-    try:
-        return float(text)
-    except ValueError:
-        m = re.match(r"^[+-]?(\d+\.?\d*|\.\d+)", text)  # e.g. "2.000000000+e00" in handmade_platform
-        if m:
-            warnings.warn(f"{where}: malformed number {text!r} read as {m.group(0)}", RuntimeWarning, stacklevel=3)
-            return float(m.group(0))
-        return text
+# Numbers. A well-formed number (what C's strtod and MATLAB's %f read in full: digits, an optional
+# point, an optional e/E exponent; ".5" and "5." included) means what it says. Three forms the
+# ASAM examples and Fortran-era IPLOS writers produce are read as their writer meant, with a
+# warning: a D exponent ("1.0D+01" = 10), the exponent sign before the letter ("2.0+e00", in
+# handmade_platform.crg) and Fortran's letterless exponent ("0.1234-105", mantissa with a point).
+# Python-only spellings (``1_0``, ``infinity``) are not numbers; nan/inf are refused in headers.
+_WELL_FORMED = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?")
+_FORTRAN = re.compile(r"(?P<m>[+-]?(?:\d+\.?\d*|\.\d+))(?:[dD](?P<e1>[+-]?\d+)|(?P<s2>[+-])[eEdD](?P<e2>\d+)"
+                      r"|(?P<s3>[+-])(?P<e3>\d{1,3}))")
+_DECIMAL_COMMA = re.compile(r"[+-]?\d*,\d+")
+MAX_VALUES = 100_000_000  # values (rows x channels) read from one file: 800 MB as float64
+MAX_HEADER_ABS = 1e12     # |header number|: beyond this, squares and sums lose all meaning
+MAX_REF_DEPTH = 8         # $ROAD_CRG_FILE nesting (the Rust opencrg crate's limit)
+_NUMERIC_KEYS = {
+    "ROAD_CRG": {f"reference_line_{a}_{b}" for a in ("start", "end")
+                 for b in ("u", "x", "y", "z", "phi", "b", "s", "lon", "lat", "alt")}
+                | {"reference_line_increment", "long_section_v_right", "long_section_v_left", "long_section_v_increment",
+                   "reference_line_offset_x", "reference_line_offset_y", "reference_line_offset_z",
+                   "reference_line_offset_phi"},
+    "ROAD_CRG_OPTS": {"border_mode_u", "border_mode_v", "border_offset_u", "border_offset_v", "border_smooth_ubeg",
+                      "border_smooth_uend", "refline_continuation", "refline_search_far", "refline_search_close",
+                      "warn_msgs", "warn_curv_local", "warn_curv_global", "log_msgs", "log_eval", "log_eval_freq",
+                      "log_hist", "log_hist_freq", "log_stat", "log_stat_freq", "check_eps", "check_inc", "check_tol",
+                      "check_pro", "check_wgs"},
+    "ROAD_CRG_MODS": {"scale_z_grid", "scale_slope", "scale_banking", "scale_length", "scale_width",
+                      "scale_curvature", "grid_nan_mode", "grid_nan_offset", "refline_rotcenter_x",
+                      "refline_rotcenter_y", "refline_offset_phi", "refline_offset_x", "refline_offset_y",
+                      "refline_offset_z", "refpoint_u", "refpoint_u_fraction", "refpoint_u_offset", "refpoint_v",
+                      "refpoint_v_fraction", "refpoint_v_offset", "refpoint_x", "refpoint_y", "refpoint_z",
+                      "refpoint_phi"},
+}
 
 
-def _parse_header(text: str, path: Path) -> dict:
+def _number(text: str) -> tuple[float | None, str]:
+    """(value, how): how is "" for a well-formed number, else what was read non-strictly."""
+    if _WELL_FORMED.fullmatch(text):
+        return float(text), ""
+    m = _FORTRAN.fullmatch(text)
+    if m and (m.group("s3") is None or "." in m.group("m")):
+        exp = m.group("e1") or (m.group("s2") or m.group("s3") or "") + (m.group("e2") or m.group("e3"))
+        return float(f"{m.group('m')}e{exp}"), "Fortran-style exponent"
+    return None, ""
+
+
+def _header_number(text: str, where: str, notes: list[str]) -> float | None:
+    """A header value as a number (see above); trailing text after a number is dropped with a
+    note, as ASAM's readers do (``%f`` / ``strtod`` stop there). None: not a number at all."""
+    val, how = _number(text)
+    if val is None and _DECIMAL_COMMA.match(text):
+        raise RoadtwinError(f"{where}: {text!r} is not a number (decimal comma?)")
+    if val is None:
+        best = None
+        for k in range(len(text) - 1, 0, -1):  # longest numeric prefix
+            val, how = _number(text[:k])
+            if val is not None:
+                best = (val, text[:k])
+                break
+        if best is None:
+            return None
+        val, how = best[0], f"read as {best[1]}"
+    if not math.isfinite(val) or abs(val) > MAX_HEADER_ABS:
+        raise RoadtwinError(f"{where}: {text!r} is out of range (|value| <= {MAX_HEADER_ABS:g})")
+    if how:
+        notes.append(f"{where}: malformed number {text!r} ({how}: {val!r})")
+    return val
+
+
+def _parse_header(text: str) -> dict:
     blocks: dict[str, list[str]] = {}
     current: str | None = None
     for raw in text.splitlines():
@@ -164,30 +222,65 @@ def _parse_header(text: str, path: Path) -> dict:
     return blocks
 
 
-def _kv(lines: list[str], path: Path, block: str) -> dict[str, float | str]:
+def _kv(lines: list[str], path: Path, block: str, notes: list[str]) -> dict[str, float | str]:
     out: dict[str, float | str] = {}
+    numeric = _NUMERIC_KEYS.get(block, set())
     for line in lines:
         if "=" not in line:
             raise RoadtwinError(f"{path}: ${block}: expected KEY = VALUE, got {line!r}")
         k, val = line.split("=", 1)
-        out[k.strip().lower()] = _num(val.strip(), f"{path}: ${block} {k.strip()}")
+        key, val = k.strip().lower(), val.strip()
+        num = _header_number(val, f"{path}: ${block} {k.strip()}", notes)
+        if num is None and key in numeric:
+            raise RoadtwinError(f"{path}: ${block} {k.strip()} = {val!r}: not a number")
+        out[key] = val if num is None else num
     return out
 
 
 def read_crg(path: str | Path) -> CRG:
-    """Read an OpenCRG file (LRFI, LDFI, KRBI or KDBI). Bad input raises a one-line RoadtwinError."""
-    path = Path(path)
+    """Read an OpenCRG file (LRFI, LDFI, KRBI or KDBI), or a file that only references one.
+
+    A referencing file has a ``$ROAD_CRG_FILE`` block naming the file with the data (relative to
+    the referencing file; the name may be split over several lines, which are joined after their
+    ``!`` comments and surrounding blanks are removed; ``$VAR`` is an environment variable) and
+    may have its own ``$ROAD_CRG_MODS`` / ``$ROAD_CRG_OPTS``. As in ASAM's ``crg_read.m`` and the
+    C loader, the least nested block wins whole: a referencing file's MODS block replaces the
+    referenced file's MODS block (its keys are not merged). References may nest
+    (``MAX_REF_DEPTH``); a cycle is refused. Bad input raises a one-line RoadtwinError naming the
+    file (and the files that referenced it); warnings are issued only for a file that reads.
+    """
+    notes: list[str] = []
+    crg = _read(Path(path), (), notes)
+    for note in notes:
+        warnings.warn(note, RuntimeWarning, stacklevel=2)
+    return crg
+
+
+def _read_bytes(path: Path) -> bytes:
     try:
-        data = path.read_bytes()
+        if path.is_dir():
+            raise RoadtwinError(f"{path}: is a directory, not an OpenCRG file")
+        size = path.stat().st_size
+        if size > 8 * MAX_VALUES + (1 << 20):
+            raise RoadtwinError(f"{path}: {size / 1e9:.1f} GB is larger than an OpenCRG file roadtwin reads "
+                                f"({MAX_VALUES:,} values)")
+        return path.read_bytes()
     except OSError as exc:
         raise RoadtwinError(f"{path}: cannot read ({exc.strerror or exc})") from None
+
+
+def _read(path: Path, chain: tuple[str, ...], notes: list[str]) -> CRG:
+    data = _read_bytes(path)
     m = re.search(rb"(?m)^\$\$\$\$[^\n]*\n?", data)
+    header = (data if m is None else data[:m.start()]).decode("latin-1")
+    blocks = _parse_header(header)
+    if "ROAD_CRG_FILE" in blocks:
+        return _read_referencing(path, blocks, m is not None, chain, notes)
     if m is None:
-        raise RoadtwinError(f"{path}: not an OpenCRG file (no $$$$ separator before the data)")
-    header = data[:m.start()].decode("latin-1")
+        raise RoadtwinError(f"{path}: not an OpenCRG file (no $$$$ separator before the data and no "
+                            "$ROAD_CRG_FILE reference)")
     body = data[m.end():]
-    blocks = _parse_header(header, path)
-    kd = next((blocks[k] for k in blocks if k in ("KD_DEFINITION",)), None)
+    kd = blocks.get("KD_DEFINITION")
     if kd is None:
         raise RoadtwinError(f"{path}: no $KD_Definition block")
     fmt = None
@@ -199,26 +292,92 @@ def read_crg(path: str | Path) -> CRG:
             fmt = rest.strip().upper()
         elif tag == "D":
             channels.append(rest.split(",", 1)[0].strip().lower())
+    if fmt is None:
+        raise RoadtwinError(f"{path}: $KD_Definition has no #: data format line (OpenCRG knows {', '.join(FORMATS)})")
     if fmt not in FORMATS:
         raise RoadtwinError(f"{path}: unknown data format {fmt!r} (OpenCRG knows {', '.join(FORMATS)})")
     if not channels:
         raise RoadtwinError(f"{path}: $KD_Definition defines no D: channels")
-    road = _kv(blocks.get("ROAD_CRG", []), path, "ROAD_CRG")
-    opts = _kv(blocks.get("ROAD_CRG_OPTS", []), path, "ROAD_CRG_OPTS")
-    mods = _kv(blocks.get("ROAD_CRG_MODS", []), path, "ROAD_CRG_MODS")
+    road = _kv(blocks.get("ROAD_CRG", []), path, "ROAD_CRG", notes)
+    opts = _kv(blocks.get("ROAD_CRG_OPTS", []), path, "ROAD_CRG_OPTS", notes)
+    mods = _kv(blocks.get("ROAD_CRG_MODS", []), path, "ROAD_CRG_MODS", notes)
     kind, width, per_rec = FORMATS[fmt]
     nch = len(channels)
     if kind == "text":
-        values = _read_text(body, nch, width, per_rec, path)
+        values = _read_text(body, nch, width, per_rec, path, notes)
     else:
-        values = _read_binary(body, nch, width, fmt, path, road)
+        values = _read_binary(body, nch, width, fmt, path, road, notes)
+    _check_values(values, channels, path)
     crg = _assemble(values, channels, road, path)
     crg.options, crg.modifiers, crg.fmt = opts, mods, fmt
     crg.comments = [c for c in blocks.get("CT", [])]
+    crg.data_file = str(path)
     return crg
 
 
-def _read_text(body: bytes, nch: int, width: int, per_rec: int, path: Path) -> np.ndarray:
+def _read_referencing(path: Path, blocks: dict, has_data: bool, chain: tuple[str, ...], notes: list[str]) -> CRG:
+    """A file that carries only a $ROAD_CRG_FILE reference (+ its own MODS / OPTS / CT)."""
+    extra = [f"${b}" for b in ("ROAD_CRG", "KD_DEFINITION") if b in blocks] + (["data after $$$$"] if has_data else [])
+    if extra:
+        raise RoadtwinError(f"{path}: has a $ROAD_CRG_FILE reference and also {', '.join(extra)} (a referencing "
+                            "file carries only $ROAD_CRG_FILE, $ROAD_CRG_MODS, $ROAD_CRG_OPTS and $CT)")
+    name = "".join(blocks["ROAD_CRG_FILE"])
+    try:  # the header is ISO-8859-1, but file systems name files in UTF-8: take that where it fits
+        name = name.encode("latin-1").decode("utf-8")
+    except UnicodeDecodeError:
+        pass
+    if not name:
+        raise RoadtwinError(f"{path}: $ROAD_CRG_FILE names no file")
+
+    def env(m: re.Match) -> str:
+        var = m.group(1) or m.group(2)
+        if var not in os.environ:
+            raise RoadtwinError(f"{path}: $ROAD_CRG_FILE {name!r}: environment variable ${var} is not set")
+        return os.environ[var]
+
+    expanded = re.sub(r"\$\{(\w+)\}|\$(\w+)", env, name)
+    target = Path(expanded)
+    if not target.is_absolute():
+        target = path.parent / target
+    here = os.path.realpath(path)
+    chain = chain + (here,)
+    if os.path.realpath(target) in chain:
+        cycle = " -> ".join(list(chain) + [os.path.realpath(target)])
+        raise RoadtwinError(f"{path}: $ROAD_CRG_FILE reference cycle: {cycle}")
+    if len(chain) > MAX_REF_DEPTH:
+        raise RoadtwinError(f"{path}: $ROAD_CRG_FILE references nest deeper than {MAX_REF_DEPTH} files")
+    try:
+        crg = _read(target, chain, notes)
+    except RoadtwinError as exc:
+        msg = str(exc)
+        if msg.endswith(")") and " (referenced by " in msg:  # nested: one list, innermost first
+            raise RoadtwinError(f"{msg[:-1]} <- {path})") from None
+        raise RoadtwinError(f"{msg} (referenced by {path})") from None
+    if "ROAD_CRG_OPTS" in blocks:
+        crg.options = _kv(blocks["ROAD_CRG_OPTS"], path, "ROAD_CRG_OPTS", notes)
+    if "ROAD_CRG_MODS" in blocks:
+        crg.modifiers = _kv(blocks["ROAD_CRG_MODS"], path, "ROAD_CRG_MODS", notes)
+    crg.source = str(path)
+    return crg
+
+
+def _too_large(path: Path, nrows: float, nch: int) -> None:
+    if not nrows * nch <= MAX_VALUES:
+        raise RoadtwinError(f"{path}: grid of {nrows:.4g} rows x {nch} channels = {nrows * nch:.4g} values "
+                            f"({nrows * nch * 8 / 1e9:.3g} GB as float64) is too large (limit {MAX_VALUES:,} values)")
+
+
+def _field(s: str, path: Path, r: int, col: int) -> tuple[float, bool]:
+    """One text data field -> (value, read non-strictly). ``*...`` and ``nan`` are missing."""
+    if s.startswith("*") or s.lower() == "nan":
+        return math.nan, False
+    val, how = _number(s)
+    if val is None:
+        raise RoadtwinError(f"{path}: data row {r + 1}, channel {col + 1}: not a number: {s!r}")
+    return val, bool(how)
+
+
+def _read_text(body: bytes, nch: int, width: int, per_rec: int, path: Path, notes: list[str]) -> np.ndarray:
     lines = body.decode("latin-1").replace("\r\n", "\n").split("\n")
     while lines and not lines[-1].strip():
         lines.pop()
@@ -229,7 +388,9 @@ def _read_text(body: bytes, nch: int, width: int, per_rec: int, path: Path) -> n
         raise RoadtwinError(f"{path}: truncated data: {len(lines)} records is not a whole number of "
                             f"{nch}-channel rows ({per_row} records each)")
     nrows = len(lines) // per_row
+    _too_large(path, nrows, nch)
     out = np.empty((nrows, nch))
+    odd = 0
     for r in range(nrows):
         col = 0
         for k in range(per_row):
@@ -242,27 +403,41 @@ def _read_text(body: bytes, nch: int, width: int, per_rec: int, path: Path) -> n
                                     "(truncated?)")
             for f in range(nf):
                 s = line[f * width:(f + 1) * width].strip()
-                if not s or s.startswith("*"):
-                    out[r, col] = np.nan if s else _bad(path, r, line)
-                else:
-                    try:
-                        out[r, col] = float(s)
-                    except ValueError:
-                        raise RoadtwinError(f"{path}: data row {r + 1}: not a number: {s!r}") from None
+                if not s:
+                    raise RoadtwinError(f"{path}: data row {r + 1} has an empty field (truncated?)")
+                out[r, col], nonstrict = _field(s, path, r, col)
+                odd += nonstrict
                 col += 1
+    if odd:
+        notes.append(f"{path}: {odd} data value(s) with a Fortran-style exponent (e.g. 1.0D+01) read as meant")
     return out
 
 
-def _bad(path: Path, r: int, line: str) -> float:
-    raise RoadtwinError(f"{path}: data row {r + 1} has an empty field (truncated?)")
+def _check_values(values: np.ndarray, channels: list[str], path: Path) -> None:
+    """No infinities anywhere; heights, slopes, banking and headings within +-1e6, reference line
+    x/y within +-MAX_HEADER_ABS (NaN is a missing value and passes)."""
+    with np.errstate(invalid="ignore"):
+        bad = ~(np.abs(values) <= MAX_HEADER_ABS) & ~np.isnan(values)
+        for j, name in enumerate(channels):
+            if " ".join(name.split()) not in ("reference line x", "reference line y"):
+                bad[:, j] |= np.abs(values[:, j]) > 1e6
+    if bad.any():
+        r, j = (int(i) for i in np.argwhere(bad)[0])
+        raise RoadtwinError(f"{path}: data row {r + 1}, channel {channels[j]!r}: value {values[r, j]:g} is out of "
+                            f"range ({int(bad.sum())} such value(s))")
 
 
-def _read_binary(body: bytes, nch: int, size: int, fmt: str, path: Path, road: dict) -> np.ndarray:
+def _read_binary(body: bytes, nch: int, size: int, fmt: str, path: Path, road: dict, notes: list[str]) -> np.ndarray:
     dtype = ">f4" if size == 4 else ">f8"
     nvals = len(body) // size
-    if "reference_line_end_u" in road and "reference_line_increment" in road:
-        nrows = int(round((float(road["reference_line_end_u"]) - float(road.get("reference_line_start_u", 0.0)))
-                          / float(road["reference_line_increment"]))) + 1
+    if isinstance(road.get("reference_line_end_u"), float) and isinstance(road.get("reference_line_increment"), float) \
+            and road["reference_line_increment"] > 0:
+        span = (road["reference_line_end_u"] - float(road.get("reference_line_start_u", 0.0))) \
+            / road["reference_line_increment"]
+        if not span >= 0:
+            raise RoadtwinError(f"{path}: REFERENCE_LINE_END_U is before REFERENCE_LINE_START_U")
+        _too_large(path, span + 1, nch)
+        nrows = int(round(span)) + 1
         if nrows * nch > nvals:
             raise RoadtwinError(f"{path}: truncated {fmt} data: {nrows} rows x {nch} channels need "
                                 f"{nrows * nch * size} bytes, file has {len(body)}")
@@ -270,21 +445,20 @@ def _read_binary(body: bytes, nch: int, size: int, fmt: str, path: Path, road: d
         nrows = nvals // nch
     if nrows < 1:
         raise RoadtwinError(f"{path}: truncated {fmt} data: not one full row of {nch} channels")
+    _too_large(path, nrows, nch)
     need = nrows * nch * size
     repaired = None
     if len(body) < -(-need // RECORD) * RECORD and len(body) >= need - 64:
         with np.errstate(invalid="ignore", over="ignore"):
             repaired = _repair_lost_cr(body, nch, size, dtype, nrows)
         if repaired is None and len(body) % RECORD and len(body) % RECORD != 1:  # a trailing newline is fine
-            warnings.warn(f"{path}: {fmt} data is {len(body)} bytes, not whole {RECORD}-byte records: the file may "
-                          "have been damaged (e.g. by a CRLF -> LF conversion); values may be shifted",
-                          RuntimeWarning, stacklevel=3)
+            notes.append(f"{path}: {fmt} data is {len(body)} bytes, not whole {RECORD}-byte records: the file may "
+                         "have been damaged (e.g. by a CRLF -> LF conversion); values may be shifted")
         if repaired is not None:
             short = -(-need // RECORD) * RECORD - len(body.rstrip(b"\n"))
-            warnings.warn(f"{path}: {fmt} data was {short} "
-                          "bytes short of whole records; restored CR bytes lost by a CRLF -> LF conversion "
-                          f"({len(repaired) - len(body)} inserted, located by reference line heading continuity)",
-                          RuntimeWarning, stacklevel=3)
+            notes.append(f"{path}: {fmt} data was {short} "
+                         "bytes short of whole records; restored CR bytes lost by a CRLF -> LF conversion "
+                         f"({len(repaired) - len(body)} inserted, located by reference line heading continuity)")
             body = repaired
     vals = np.frombuffer(body[:need], dtype=dtype).astype(np.float64).reshape(nrows, nch)
     if "reference_line_end_u" not in road:
@@ -349,6 +523,8 @@ def _assemble(values: np.ndarray, channels: list[str], road: dict, path: Path) -
     nrows = len(values)
     inc = float(road.get("reference_line_increment", 0.0) or 0.0)
     u0 = float(road.get("reference_line_start_u", 0.0))
+    if "reference_line_increment" in road and not inc > 0:
+        raise RoadtwinError(f"{path}: REFERENCE_LINE_INCREMENT must be positive, got {road['reference_line_increment']}")
     if not inc > 0:
         if "reference_line_end_u" in road and nrows > 1:
             inc = (float(road["reference_line_end_u"]) - u0) / (nrows - 1)
@@ -356,10 +532,14 @@ def _assemble(values: np.ndarray, channels: list[str], road: dict, path: Path) -
             raise RoadtwinError(f"{path}: $ROAD_CRG needs a positive REFERENCE_LINE_INCREMENT")
     if "reference_line_end_u" in road:
         expect = (float(road["reference_line_end_u"]) - u0) / inc + 1
+        _too_large(path, expect, len(channels))
         if abs(expect - nrows) > 1e-6 * max(1.0, expect):
             raise RoadtwinError(f"{path}: {nrows} data rows, but REFERENCE_LINE_START_U/END_U/INCREMENT give "
                                 f"{expect:g} (truncated?)")
     u = u0 + inc * np.arange(nrows)
+    if nrows > 1 and not (np.diff(u) > 0).all():
+        raise RoadtwinError(f"{path}: REFERENCE_LINE_INCREMENT {inc:g} is too small to step from "
+                            f"REFERENCE_LINE_START_U {u0:g}")
     ref: dict[str, np.ndarray] = {}
     ls_idx: list[int] = []
     ls_v: list[float | None] = []
@@ -440,6 +620,8 @@ def _derive_reference_line(crg: CRG, where: str) -> None:
         seg = np.full(n - 1, phi0)
     if crg.ref_x is not None and crg.ref_y is not None:
         x, y = crg.ref_x.copy(), crg.ref_y.copy()
+        if not (np.isfinite(x).all() and np.isfinite(y).all()):
+            raise RoadtwinError(f"{where}: reference line x/y have missing values")
         if crg.phi is None and n > 1:
             seg = np.arctan2(np.diff(y), np.diff(x))
     else:
@@ -538,7 +720,7 @@ def write_crg(path: str | Path, crg: CRG, binary: bool = False, double: bool | N
     """
     path = Path(path)
     data = crg_bytes(crg, binary, double)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         tmp.write_bytes(data)
         tmp.replace(path)
@@ -564,13 +746,17 @@ def fill_missing(z: np.ndarray, mode: int = 2, offset: float = 0.0, v: np.ndarra
     rows_ok = ~bad.all(axis=1)
     if not rows_ok.any():
         raise RoadtwinError("CRG: every grid cell is missing")
+    order = np.argsort(vv, kind="stable")
     for i in np.where(bad.any(axis=1) & rows_ok)[0]:
-        good = np.where(~bad[i])[0]
-        for j in np.where(bad[i])[0]:
-            d = np.abs(vv[good] - vv[j])
-            # ties towards the reference line (smaller |v|)
-            k = good[np.lexsort((np.abs(vv[good]), d))[0]]
-            out[i, j] = z[i, k] + offset
+        good = order[~bad[i, order]]  # valid columns, by increasing v
+        miss = np.where(bad[i])[0]
+        pos = np.searchsorted(vv[good], vv[miss])
+        lo = good[np.clip(pos - 1, 0, len(good) - 1)]
+        hi = good[np.clip(pos, 0, len(good) - 1)]
+        dlo, dhi = np.abs(vv[lo] - vv[miss]), np.abs(vv[hi] - vv[miss])
+        # the nearer valid value in v; ties towards the reference line (smaller |v|)
+        take_hi = (dhi < dlo) | ((dhi == dlo) & (np.abs(vv[hi]) < np.abs(vv[lo])))
+        out[i, miss] = z[i, np.where(take_hi, hi, lo)] + offset
     okrows = np.where(rows_ok)[0]
     for i in np.where(~rows_ok)[0]:
         out[i] = out[okrows[np.argmin(np.abs(okrows - i))]]
@@ -600,6 +786,8 @@ class CrgSurface(SurfaceModel):
             raise RoadtwinError(f"{crg.source or 'CRG'}: GRID_NAN_MODE/OFFSET must be numbers") from None
         if mode not in (0, 1, 2):
             raise RoadtwinError(f"{crg.source or 'CRG'}: GRID_NAN_MODE must be 0, 1 or 2, got {mode}")
+        if mode and crg.z.size and np.isnan(crg.z).all():
+            raise RoadtwinError(f"{crg.source or 'CRG'}: every grid cell is missing")
         self.grid = fill_missing(crg.z, mode, offset, crg.v)
         filled = crg.missing - int(np.isnan(self.grid).sum())
         if filled and warn:

@@ -33,7 +33,7 @@ import numpy as np
 from roadtwin_core import RoadtwinError
 from roadtwin_core.usd import load_town, read_layout
 
-from .crg import CRG, CrgSurface, write_crg
+from .crg import CRG, MAX_VALUES, CrgSurface, write_crg
 
 DU = 0.05
 DV = 0.05
@@ -167,10 +167,13 @@ def _half_width(seg) -> float:
 def lane_crg(stage_path: str | Path, du: float = DU, dv: float = DV) -> CRG:
     """Sample the composed road surface of ``stage_path`` along the longest driving lane."""
     stage_path = Path(stage_path)
-    town = load_town(stage_path)
+    if not stage_path.is_file():
+        raise RoadtwinError(f"{stage_path}: " + ("is a directory, not a stage file" if stage_path.is_dir() else "no such file"))
+    # before opening the stage: its sublayers name the layout, and USD would print its own warning
     layouts = sorted((stage_path.parent / "layout").glob("*.usda"))
     if not layouts:
         raise RoadtwinError(f"{stage_path}: no layout/*.usda beside the stage (export a stage written by roadtwin compose)")
+    town = load_town(stage_path)
     layout = read_layout(layouts[0])
     chain = lane_chain(layout)
     line = np.concatenate([s.centerline if k == 0 else s.centerline[1:] for k, s in enumerate(chain)])
@@ -179,6 +182,10 @@ def lane_crg(stage_path: str | Path, du: float = DU, dv: float = DV) -> CRG:
     if nvh < 1:
         raise RoadtwinError(f"{stage_path}: lane {chain[0].id} is narrower than 2 x {dv} m")
     v = np.arange(-nvh, nvh + 1) * dv
+    rows = float(np.linalg.norm(np.diff(line, axis=0), axis=1).sum()) / du + 1
+    if rows * len(v) > MAX_VALUES:
+        raise RoadtwinError(f"{stage_path}: lane {chain[0].id}: a {du} m x {dv} m grid of {rows:.4g} x {len(v)} values "
+                            f"is too large for one CRG (limit {MAX_VALUES:,})")
     pts = _resample(line, du)
     phi_seg = np.arctan2(np.diff(pts[:, 1]), np.diff(pts[:, 0]))
     u = np.arange(len(pts)) * du

@@ -16,6 +16,13 @@ from pathlib import Path
 
 from roadtwin_core import RoadtwinError
 
+# Sanity bounds (m): coordinates of projected maps reach ~1e7 m (UTM northings); a road longer
+# than 1000 km or a lane wider than 100 m is a corrupt file, and such values overflow the
+# geometry libraries downstream (shapely / triangle crash on 1e308).
+MAX_ABS = 1e8
+MAX_LENGTH_M = 1e6
+MAX_WIDTH_M = 100.0
+GAP_TOL_M = 0.01
 GEOMETRY_KINDS = ("line", "arc", "spiral", "poly3", "paramPoly3")
 # Child elements of <geometry> that carry no shape (tool extensions).
 _GEOMETRY_EXTRAS = {"userData", "include", "dataQuality"}
@@ -133,7 +140,8 @@ class _Reader:
     def fail(self, where: str, message: str) -> RoadtwinError:
         return RoadtwinError(f"{self.name}: {where}{': ' if where else ''}{message}")
 
-    def num(self, el: ET.Element, key: str, where: str, default: float | None = None) -> float:
+    def num(self, el: ET.Element, key: str, where: str, default: float | None = None,
+            limit: float = MAX_ABS) -> float:
         raw = el.get(key)
         if raw is None:
             if default is not None:
@@ -145,15 +153,20 @@ class _Reader:
             raise self.fail(where, f"<{_local(el.tag)}> attribute {key}={raw!r} is not a number") from None
         if not math.isfinite(value):
             raise self.fail(where, f"<{_local(el.tag)}> attribute {key}={raw!r} is not finite")
+        if abs(value) > limit:
+            raise self.fail(where, f"<{_local(el.tag)}> attribute {key}={raw!r} is absurdly large "
+                                   f"(at most {limit:g} in magnitude)")
         return value
 
-    def cubic(self, el: ET.Element, where: str, s_key: str = "s") -> Cubic:
-        return Cubic(self.num(el, s_key, where), *(self.num(el, k, where, 0.0) for k in "abcd"))
+    def cubic(self, el: ET.Element, where: str, s_key: str = "s", need_a: bool = False) -> Cubic:
+        a = self.num(el, "a", where, None if need_a else 0.0, limit=MAX_WIDTH_M if need_a else MAX_ABS)
+        return Cubic(self.num(el, s_key, where, limit=MAX_LENGTH_M), a, *(self.num(el, k, where, 0.0) for k in "bcd"))
 
-    def cubics(self, parent: ET.Element | None, tag: str, where: str, s_key: str = "s") -> list[Cubic]:
+    def cubics(self, parent: ET.Element | None, tag: str, where: str, s_key: str = "s",
+               need_a: bool = False) -> list[Cubic]:
         if parent is None:
             return []
-        recs = [self.cubic(el, where, s_key) for el in parent if _local(el.tag) == tag]
+        recs = [self.cubic(el, where, s_key, need_a) for el in parent if _local(el.tag) == tag]
         return sorted(recs, key=lambda r: r.s)
 
 
@@ -226,7 +239,7 @@ def read_xodr(path: str | Path) -> OpenDriveFile:
 
 def _read_road(rd: _Reader, el: ET.Element, rid: str) -> Road:
     where = f"road {rid}"
-    length = rd.num(el, "length", where)
+    length = rd.num(el, "length", where, limit=MAX_LENGTH_M)
     if length <= 0:
         raise rd.fail(where, f"length must be > 0, got {length}")
     junction = (el.get("junction") or "-1").strip() or "-1"
@@ -256,7 +269,7 @@ def _read_road(rd: _Reader, el: ET.Element, rid: str) -> Road:
             params["pRange"] = p_range
         else:
             params = {}
-        glen = rd.num(g, "length", where)
+        glen = rd.num(g, "length", where, limit=MAX_LENGTH_M)
         if glen < 0:
             raise rd.fail(where, f"<geometry s={g.get('s')}> has negative length {glen}")
         geoms.append(Geometry(gs, rd.num(g, "x", where), rd.num(g, "y", where), rd.num(g, "hdg", where, 0.0),
@@ -264,6 +277,7 @@ def _read_road(rd: _Reader, el: ET.Element, rid: str) -> Road:
     if not geoms:
         raise rd.fail(where, "has no <planView> geometry")
     geoms.sort(key=lambda g: g.s)
+    _check_coverage(rd, where, geoms, length)
     geoms = [g for g in geoms if g.length > 1e-12] or geoms[:1]
 
     lanes_el = _child(el, "lanes")
@@ -289,6 +303,25 @@ def _read_road(rd: _Reader, el: ET.Element, rid: str) -> Road:
                 rd.cubics(lanes_el, "laneOffset", where), sections)
 
 
+def _check_coverage(rd: _Reader, where: str, geoms: list[Geometry], length: float) -> None:
+    """The plan view must run from s = 0 to the road's length without gaps: a geometry of zero
+    length between two that meet is harmless (tools write them) and is dropped later, but one
+    that leaves the road partly without a reference line is malformed."""
+    tol = max(GAP_TOL_M, 1e-6 * length)
+    end, last = 0.0, None
+    for g in geoms:
+        if g.s > end + tol:
+            raise rd.fail(where, f"<planView> has a gap from s={end:g} to s={g.s:g} m{_zero_hint(last)}")
+        end, last = max(end, g.s + g.length), g
+    if end < length - tol:
+        raise rd.fail(where, f"<planView> geometries end at s={end:g} m, short of the road length {length:g} m"
+                             f"{_zero_hint(last)}")
+
+
+def _zero_hint(g: Geometry | None) -> str:
+    return f" (<geometry s={g.s:g}> has zero length)" if g is not None and g.length <= 1e-12 else ""
+
+
 def _read_lanes(rd: _Reader, side: ET.Element | None, where: str, sign: int) -> list[Lane]:
     lanes = []
     for ln in _children(side, "lane"):
@@ -301,7 +334,7 @@ def _read_lanes(rd: _Reader, side: ET.Element | None, where: str, sign: int) -> 
             raise rd.fail(where, f"lane {lid} is on the wrong side ({'left' if sign > 0 else 'right'} lanes have "
                                  f"{'positive' if sign > 0 else 'negative'} ids)")
         lw = f"{where}: lane {lid}"
-        widths = rd.cubics(ln, "width", lw, s_key="sOffset")
+        widths = rd.cubics(ln, "width", lw, s_key="sOffset", need_a=True)  # the width itself: no default
         if not widths:
             if _children(ln, "border"):
                 raise rd.fail(lw, "uses <border> records, which are not supported (only <width>)")

@@ -42,8 +42,8 @@ __all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "
 @dataclass
 class StereoDefectsParams:
     k_grow: float = field(3.0, lo=0.5, doc="candidate pixels: deviation below the road > k_grow robust sigma")
-    k_seed: float = field(10.0, lo=0.5, doc="a defect needs seed pixels deeper than k_seed robust sigma")
-    min_area_frac: float = field(0.002, lo=0.0, hi=1.0, doc="seed pixels a defect needs (fraction of the image)")
+    k_seed: float = field(10.0, lo=0.5, doc="a defect's peak depth exceeds k_seed road-noise sigmas")
+    min_area_frac: float = field(0.0, lo=0.0, hi=1.0, doc="optional floor on a defect's area (fraction of the image)")
     grid_m: float = field(0.01, lo=1e-4, hi=1.0, doc="grid sampling step of the defect mesh (m)")
     disparity_scale: float = field(1.0, lo=1e-9, doc="integer disparity PNGs are divided by this (KITTI: 256)")
     max_disparity: int = field(128, lo=16, hi=1024, doc="SGBM disparity range (px)")
@@ -69,6 +69,37 @@ def _image(x: Any, what: str) -> tuple[np.ndarray, str]:
     if img is None:
         raise RoadtwinError(f"{p}: cannot read {what} image")
     return img, str(p)
+
+
+MIN_SIDE_PX = 16  # smaller maps hold no road model to fit
+
+
+def _read_disparity(path: Path, scale: float, transformed: bool) -> np.ndarray:
+    """A disparity map file, checked at the edge: a readable file of real numbers, 2-D and at
+    least MIN_SIDE_PX a side. An untransformed map's values <= 0 are invalid pixels (as for
+    arrays); a transformed map may hold any finite value."""
+    if path.is_dir():
+        raise RoadtwinError(f"{path}: is a directory, not a disparity map")
+    if not path.is_file():
+        raise RoadtwinError(f"{path}: no such disparity map")
+    if path.suffix.lower() == ".npy":
+        try:
+            head = np.load(path, mmap_mode="r", allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            raise RoadtwinError(f"{path}: cannot read as a .npy array ({exc})") from None
+        if head.dtype.kind not in "iuf":
+            raise RoadtwinError(f"{path}: disparity must hold real numbers, got dtype {head.dtype}")
+        del head
+    try:
+        disp = load_disparity(path, scale)
+    except (ValueError, TypeError, OSError) as exc:
+        raise RoadtwinError(f"{path}: cannot read the disparity map ({exc})") from None
+    if min(disp.shape) < MIN_SIDE_PX:
+        raise RoadtwinError(f"{path}: disparity map is {disp.shape[1]}x{disp.shape[0]} px, too small to model a road "
+                            f"(at least {MIN_SIDE_PX} px a side)")
+    if not transformed:
+        disp[disp <= 0] = np.nan
+    return disp
 
 
 def _K(k: Any) -> np.ndarray:
@@ -111,7 +142,7 @@ class StereoDefects:
                 disp[~np.isfinite(disp) | (disp <= 0)] = np.nan
                 source = "array"
             else:
-                disp = load_disparity(src, p.disparity_scale)
+                disp = _read_disparity(Path(src), p.disparity_scale, transformed_in)
                 source = str(src)
         elif inputs.get("left") is not None and inputs.get("right") is not None:
             lname = "left image (array)" if isinstance(inputs["left"], np.ndarray) else str(inputs["left"])

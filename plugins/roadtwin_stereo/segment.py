@@ -1,37 +1,43 @@
 """Defect pixels from a transformed disparity map (core-free: numpy + OpenCV + scipy).
 
 After Fan et al.'s disparity transformation the road is (nearly) constant and a pothole is a
-region of *lower* disparity (farther = deeper). Detection, with every constant fixed once for all
-frames (nothing is tuned per frame):
+region of *lower* disparity (farther = deeper). What changes between roads and days -- the
+disparity range and its per-frame normalisation, the leftover roll and pitch, the noise and
+texture of the surface, the share of the frame that is road, the size and depth of the pothole --
+is absorbed by measuring every threshold in units the frame itself supplies:
 
-1. **Invalid pixels.** A value of 0 (or NaN) means "no disparity". In the real ZED frames of
-   Fan et al. the 16-bit PNG is the transformed disparity min-max normalised to 1..65535 per
-   frame (the maximum is exactly 65535 in every frame, the units are gone), with 0 for invalid
-   pixels. The method below is invariant to that per-frame affine scaling: every threshold is in
-   units of the frame's own robust noise level.
-2. **Road surface model.** A robust (trimmed, iterated least squares) quadratic surface
-   ``r(u, v)`` is fitted to the valid pixels, as in Fan et al.'s road surface modelling step; it
-   absorbs what the 1-D transformation leaves (slight pitch/yaw, the normalisation).
-3. **Noise level.** The residual ``e = d - r`` is smoothed by a normalised Gaussian (sigma 2 px,
-   which ignores invalid pixels) and its spread ``s`` is the MAD of the valid pixels x 1.4826 (a
-   robust standard deviation: potholes cover a few % of the image and barely move it).
-4. **Hysteresis threshold.** Candidate pixels deviate below the median by more than
-   ``k_grow = 3`` s (the usual 3-sigma rule: 0.13 % of road pixels on one side). A candidate
-   region is kept only if it contains at least ``min_area_frac`` of the image of *seed* pixels
-   deeper than ``k_seed = 10`` s -- far outside any road texture, so wide shallow undulations
-   (shadows of the surface model, worn patches) are not potholes while real potholes, tens of s
-   deep, are. F1 on the 5 real frames is flat for k_seed in 6..15 on frames 1-4 and 10..15 on
-   all five; k_grow = 3 was taken from the rule above, not from the labels. Full disclosure:
-   the labelled frames *were* looked at while choosing the design (a plane instead of the
-   quadratic surface model gives mean F1 0.894; k_seed = 6 with the quadratic model lets a wide
-   shallow corner depression of frame 5 through, F1 0.37 there; k_grow = 2 would give 0.907), so
-   the 5 frames are not an independent hold-out for these choices.
-5. **Morphology.** An opening (radius 3 px) removes speckle; invalid pixels enclosed by or
-   touching a candidate region (stereo matching fails on pothole walls and bottoms: 27-42 % of
-   the labelled pixels are 0 in the real frames) join it unless they touch the image border (the
-   strip of unmatched columns at the right edge); a closing (radius 5 px) bridges small gaps;
-   holes are filled.
-6. **Instances.** 8-connected components of the result, the kept ones renumbered 1..N.
+1. **Invalid pixels.** 0 or NaN = no disparity. Fan et al.'s 16-bit maps are min-max normalised
+   per frame (units gone); nothing below depends on an affine change of the values.
+2. **Road surface model.** A quadratic surface ``r(u, v)`` fitted by iterated trimmed least
+   squares (Fan et al. T-IP 2019 fit a quadratic road model too). Potholes lie only *below* the
+   road, so the first fit starts on the pixels above the frame's median residual of a plane: a
+   pothole or a non-road area covering a large share of the frame cannot bend the start.
+   Trimming at 3 robust sigma then converges to the dominant (road) surface; it absorbs the
+   roll/pitch the 1-D transformation leaves.
+3. **Road noise sigma.** The residual ``e = d - r`` is smoothed by a normalised Gaussian (sigma
+   ``blur_px``, ignoring invalid pixels); ``s`` = 1.4826 x MAD over the *road inliers* of the fit
+   (not over every valid pixel: kerbs, verges and potholes would inflate it). ``z = e / s``.
+4. **Candidates.** ``z < -k_grow`` with ``k_grow = 3``: the one-sided 3-sigma rule (0.13 % of road
+   pixels), a convention, not read off labels. Opening removes speckle.
+5. **Which regions are potholes.** A candidate region is kept if its peak depth (10th percentile
+   of ``z`` over it) exceeds ``k_seed`` road sigmas -- a depth relative to this frame's noise,
+   whatever the region's size (the earlier detector demanded a fixed seed *area* of 0.2 % of the
+   image, which a small pothole on another road does not reach).
+6. **Where a pothole ends.** Each kept region is cut at ``max(k_grow, depth_frac x its own peak
+   depth)``: a deep pothole's edge is set relative to that pothole, so a shallow sag of the road
+   around it (seen as twice the labelled area on other roads) does not join it.
+7. **Invalid pixels inside.** Stereo matching fails on pothole walls and bottoms (27-42 % of
+   the labelled pixels are 0 in the real frames). An invalid blob joins a pothole when more of
+   the valid pixels bordering it belong to the pothole than lie at road level (a majority vote
+   of its neighbours, no threshold) and it does not touch the image border; then a closing
+   (``close_px``) and hole filling.
+8. **Instances.** 8-connected components, renumbered 1..N.
+
+``k_seed`` and ``depth_frac`` are the two numbers chosen by looking at labels; ``bench/stereo_cv.py``
+chooses them by leave-one-out cross-validation and reports F1 only on held-out frames
+(docs/stereo_detector.md). The defaults are the values every fold chose on the 13 frames
+(k_seed 10, depth_frac 0: the labels put a pothole's edge at road level, z ~ 0); depth_frac > 0
+is the knob for roads whose potholes come out too wide.
 """
 from __future__ import annotations
 
@@ -40,12 +46,15 @@ from pathlib import Path
 
 import numpy as np
 
+MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian x this = its standard deviation
+
 
 @dataclass
 class SegmentParams:
-    k_grow: float = 3.0          # candidate: residual < median - k_grow * s
-    k_seed: float = 10.0         # a kept region must hold seeds with residual < median - k_seed * s
-    min_area_frac: float = 0.002  # seed pixels a region needs, as a fraction of the image
+    k_grow: float = 3.0          # candidate pixel: below the road by more than k_grow road sigmas
+    k_seed: float = 10.0         # a kept region's peak depth exceeds k_seed road sigmas
+    depth_frac: float = 0.0      # a region's edge: max(k_grow, depth_frac x its peak depth) sigmas
+    min_area_frac: float = 0.0   # optional floor on a region's area (fraction of the image); 0 = off
     blur_px: float = 2.0         # Gaussian sigma of the residual smoothing (pixels)
     open_px: int = 3             # opening radius (speckle removal)
     close_px: int = 5            # closing radius (gap bridging)
@@ -105,21 +114,35 @@ def _poly_design(u: np.ndarray, v: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, axis=-1)
 
 
-def fit_road_surface(d: np.ndarray, degree: int = 2, step: int = 4, iters: int = 6) -> np.ndarray:
-    """Robust polynomial surface r(u, v) over the valid pixels of ``d`` (NaN = invalid):
-    least squares on a subsampled grid, refitted on the pixels within 3 robust sigma."""
+def _robust_sigma(x: np.ndarray) -> float:
+    return MAD_TO_SIGMA * float(np.median(np.abs(x - np.median(x)))) + 1e-12
+
+
+def fit_road_surface(d: np.ndarray, degree: int = 2, step: int = 4, iters: int = 10,
+                     return_inliers: bool = False):
+    """Robust polynomial surface r(u, v) over the valid pixels of ``d`` (NaN = invalid).
+
+    Least squares on a subsampled grid; the first fit uses only pixels above the median residual
+    of a plane (potholes lie below the road), then refits on the pixels within 3 robust sigma
+    until the inlier set stops changing. With ``return_inliers`` also returns a full-size mask of
+    the road inliers (pixels within 3 robust sigma of the final surface)."""
     h, w = d.shape
     vv, uu = np.mgrid[0:h:step, 0:w:step]
     z = d[::step, ::step]
     ok = np.isfinite(z)
-    a = _poly_design(uu[ok] / w - 0.5, vv[ok] / h - 0.5, degree)
+    un, vn = uu[ok] / w - 0.5, vv[ok] / h - 0.5
+    a = _poly_design(un, vn, degree)
     zm = z[ok]
-    inl = np.ones(len(zm), bool)
+    a1 = _poly_design(un, vn, 1)
+    c1, *_ = np.linalg.lstsq(a1, zm, rcond=None)
+    r1 = zm - a1 @ c1
+    inl = r1 >= np.median(r1)
     coef = np.zeros(a.shape[1])
+    s = 1.0
     for _ in range(iters):
         coef, *_ = np.linalg.lstsq(a[inl], zm[inl], rcond=None)
         r = zm - a @ coef
-        s = 1.4826 * np.median(np.abs(r[inl] - np.median(r[inl]))) + 1e-12
+        s = _robust_sigma(r[inl])
         new = np.abs(r - np.median(r[inl])) < 3 * s
         if new.sum() < a.shape[1] * 3 or np.array_equal(new, inl):
             break
@@ -128,56 +151,93 @@ def fit_road_surface(d: np.ndarray, degree: int = 2, step: int = 4, iters: int =
     for r0 in range(0, h, 256):  # row blocks: bounded memory
         v, u = np.mgrid[r0:min(h, r0 + 256), 0:w]
         out[r0:r0 + len(v)] = _poly_design(u / w - 0.5, v / h - 0.5, degree) @ coef
-    return out
+    if not return_inliers:
+        return out
+    e = d - out
+    med = float(np.median(e[np.isfinite(e)][::step])) if np.isfinite(e).any() else 0.0
+    return out, np.isfinite(e) & (np.abs(e - med) < 3 * s)
 
 
-def segment_defects(disp: np.ndarray, params: SegmentParams | None = None) -> np.ndarray:
-    """Instance labels (int32, 0 = road, 1..N = defects) of a transformed disparity map
-    (NaN or 0 = invalid). See the module docstring for the method."""
+def road_residual(disp: np.ndarray, params: SegmentParams | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(z, valid): the smoothed residual to the robust road surface in units of the road's own
+    noise sigma (road level = 0, potholes negative), and the mask of valid pixels."""
     import cv2
-    from scipy import ndimage as ndi
 
     p = params or SegmentParams()
     d = np.asarray(disp, dtype=np.float64).copy()
     d[~np.isfinite(d) | (d == 0)] = np.nan
     valid = np.isfinite(d)
     if valid.sum() < 100:
-        return np.zeros(d.shape, np.int32)
-    res = d - fit_road_surface(d, p.surface_degree)
-    res0 = np.where(valid, res, 0.0)
+        return np.zeros(d.shape), valid
+    surface, road = fit_road_surface(d, p.surface_degree, return_inliers=True)
+    res0 = np.where(valid, d - surface, 0.0)
     if p.blur_px > 0:
         num = cv2.GaussianBlur(res0, (0, 0), p.blur_px)
         den = cv2.GaussianBlur(valid.astype(np.float64), (0, 0), p.blur_px)
         res0 = np.where(den > 0.2, num / np.maximum(den, 1e-9), 0.0)
-    v = res0[valid]
-    med = float(np.median(v))
-    s = 1.4826 * float(np.median(np.abs(v - med))) + 1e-12
-    low = (res0 < med - p.k_grow * s) & valid
-    seed = (res0 < med - p.k_seed * s) & valid
+    ref = res0[road] if road.sum() > 100 else res0[valid]
+    med = float(np.median(ref))
+    return np.where(valid, (res0 - med) / _robust_sigma(ref), 0.0), valid
+
+
+def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | None = None) -> np.ndarray:
+    """Instance labels (int32, 0 = road) from :func:`road_residual`'s output (steps 4-8 of the
+    module docstring); split off so a parameter sweep reuses one surface fit."""
+    import cv2
+    from scipy import ndimage as ndi
+
+    p = params or SegmentParams()
+    out = np.zeros(z.shape, np.int32)
+    if valid.sum() < 100:
+        return out
+    low = (z < -p.k_grow) & valid
     if p.open_px > 0:
         ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * p.open_px + 1,) * 2)
         low = cv2.morphologyEx(low.astype(np.uint8), cv2.MORPH_OPEN, ker).astype(bool)
-    # invalid regions that touch a candidate region and not the image border join it
-    n, lab = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=8)
-    if n > 1:
-        border = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-        near = cv2.dilate(low.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & ~valid
-        ok = np.zeros(n, bool)
-        ok[np.unique(lab[near])] = True
-        ok[border] = False
-        ok[0] = False
-        low |= ok[lab]
+    n, lab = cv2.connectedComponents(low.astype(np.uint8), connectivity=8)
+    if n <= 1:
+        return out
+    # step 5: peak depth per region (10th percentile of z), step 6: edge relative to it
+    order = np.argsort(lab.ravel(), kind="stable")
+    zs = z.ravel()[order]
+    counts = np.bincount(lab.ravel(), minlength=n)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    peak = np.zeros(n)
+    for i in range(1, n):
+        zi = zs[starts[i]:starts[i] + counts[i]]
+        peak[i] = -np.percentile(zi, 10)
+    keep = peak > p.k_seed
+    keep[0] = False
+    if p.min_area_frac > 0:
+        keep &= counts >= p.min_area_frac * z.size
+    edge = np.maximum(p.k_grow, p.depth_frac * peak)
+    region = keep[lab] & (z < -edge[lab])
+    # step 7: invalid blobs mostly bordered by the region join it (not those on the image border)
+    n_inv, inv = cv2.connectedComponents((~valid).astype(np.uint8), connectivity=8)
+    if n_inv > 1 and region.any():
+        ring = cv2.dilate((~valid).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool) & valid
+        near = ndi.grey_dilation(inv, size=(3, 3))  # id of an adjacent invalid blob (largest id wins)
+        join = np.bincount(near[ring & region], minlength=n_inv) > 0
+        border = np.unique(np.concatenate([inv[0], inv[-1], inv[:, 0], inv[:, -1]]))
+        join[border] = False
+        join[0] = False
+        region |= join[inv]
     if p.close_px > 0:
         ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * p.close_px + 1,) * 2)
-        low = cv2.morphologyEx(low.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
-    n, lab = cv2.connectedComponents(low.astype(np.uint8), connectivity=8)
-    seeds = np.bincount(lab.ravel(), weights=seed.ravel(), minlength=n)
-    keep = seeds >= p.min_area_frac * d.size
-    keep[0] = False
-    out = np.zeros(d.shape, np.int32)
-    for new_id, old in enumerate(np.flatnonzero(keep), start=1):
-        out[ndi.binary_fill_holes(lab == old) & (out == 0)] = new_id
-    return out
+        region = cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_CLOSE, ker).astype(bool)
+    region = ndi.binary_fill_holes(region)
+    if p.open_px > 0:  # pieces a relative edge cut off that are smaller than the speckle scale
+        ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * p.open_px + 1,) * 2)
+        region = cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_OPEN, ker).astype(bool)
+    n, lab = cv2.connectedComponents(region.astype(np.uint8), connectivity=8)
+    return lab.astype(np.int32)
+
+
+def segment_defects(disp: np.ndarray, params: SegmentParams | None = None) -> np.ndarray:
+    """Instance labels (int32, 0 = road, 1..N = defects) of a transformed disparity map
+    (NaN or 0 = invalid). See the module docstring for the method."""
+    z, valid = road_residual(disp, params)
+    return segment_residual(z, valid, params)
 
 
 def f1_score(pred: np.ndarray, label: np.ndarray) -> float:

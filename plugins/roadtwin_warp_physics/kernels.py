@@ -49,6 +49,7 @@ default LBVH on an H200. No atomics anywhere: results are deterministic.
 """
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import warp as wp
@@ -70,6 +71,18 @@ PMB, PIXX, PIYY, PIZZ, PMU, PR, PW, PKT, PCT = (_P[k] for k in ("MB", "IXX", "IY
 PKSTOP, PCSTOP, PIMUX, PIMUY, PIMUZ, PCGH, PC0, PCSTRIDE = (_P[k] for k in ("KSTOP", "CSTOP", "IMUX", "IMUY", "IMUZ",
                                                                           "CGH", "C0", "CS"))
 GRAV = wp.constant(GRAVITY)
+
+# Compile time (issue #12): nothing here is differentiated, so no backward pass (it more than
+# doubled the generated code); and each kernel is its own warp module, so a launch compiles that
+# kernel alone, for the block size it is launched with (one shared module was compiled whole,
+# every kernel with it, once per block size used: 256, 128 and 32 on CUDA).
+wp.set_module_options({"enable_backward": False})
+_NO_GRAD = {"enable_backward": False}
+
+
+def kernel(f):
+    """``wp.kernel`` in a module of its own, forward only."""
+    return wp.kernel(f, enable_backward=False, module="unique", module_options=_NO_GRAD)
 
 
 def quiet() -> None:
@@ -289,7 +302,7 @@ def slice_contact(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, i: int, j:
     return out
 
 
-@wp.kernel
+@kernel
 def contact_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, slices: wp.array2d(dtype=wp.vec4)):
     """One thread per tire slice of every vehicle."""
     i, j = wp.tid()
@@ -466,7 +479,7 @@ def advance_full(fl: Fleet, st: State, cfg: Config, out: Output, i: int, slices:
                                      fl.params[pi, PC0 + 2 * PCSTRIDE + 7], fl.params[pi, PC0 + 3 * PCSTRIDE + 7])
 
 
-@wp.kernel
+@kernel
 def step_kernel(fl: Fleet, st: State, cfg: Config, out: Output, slices: wp.array2d(dtype=wp.vec4)):
     i = wp.tid()
     if st.dead[i] != 0 or st.step[i] >= fl.nsteps[i]:
@@ -474,7 +487,7 @@ def step_kernel(fl: Fleet, st: State, cfg: Config, out: Output, slices: wp.array
     advance_full(fl, st, cfg, out, i, slices)
 
 
-@wp.kernel
+@kernel
 def fused_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Output,
                  slices: wp.array2d(dtype=wp.vec4), nsub: int):
     """CPU path: one thread integrates its vehicle ``nsub`` steps, casting its rays inline."""
@@ -489,7 +502,7 @@ def fused_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Output
         advance_full(fl, st, cfg, out, i, slices)
 
 
-@wp.kernel
+@kernel
 def init_full_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, ztop: float):
     """Static pose over the road: heave/roll/pitch from the road heights under the 4 wheels,
     springs at their static compression, no vertical motion."""
@@ -536,7 +549,7 @@ def init_full_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, ztop: f
     st.gyro_sum[i] = wp.vec3()
 
 
-@wp.kernel
+@kernel
 def set_state_kernel(st: State, q: wp.array(dtype=wp.vec3), qd: wp.array(dtype=wp.vec3),
                      s: wp.array(dtype=wp.vec4), sd: wp.array(dtype=wp.vec4), mask: wp.array(dtype=wp.int32)):
     """Override the initial state of vehicles whose mask is 1 (validation tests)."""
@@ -549,7 +562,7 @@ def set_state_kernel(st: State, q: wp.array(dtype=wp.vec3), qd: wp.array(dtype=w
     st.sd[i] = sd[i]
 
 
-@wp.kernel
+@kernel
 def fix_vimu_kernel(fl: Fleet, st: State, cfg: Config):
     """Recompute the IMU reference velocity after a state override."""
     i = wp.tid()
@@ -568,7 +581,7 @@ def fix_vimu_kernel(fl: Fleet, st: State, cfg: Config):
 
 
 # ----------------------------------------------------------------------------- quarter car
-@wp.kernel
+@kernel
 def quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Output, nsub: int):
     i = wp.tid()
     pi = fl.pidx[i]
@@ -625,7 +638,7 @@ def quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Outp
             out.susp[i, k] = wp.vec4(comp - sstat, 0.0, 0.0, 0.0)
 
 
-@wp.kernel
+@kernel
 def init_quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, ztop: float):
     i = wp.tid()
     pi = fl.pidx[i]
@@ -686,6 +699,21 @@ def path_at(xy: np.ndarray, psi: np.ndarray, ds: float, s: np.ndarray) -> np.nda
     p = xy[k] + (xy[k + 1] - xy[k]) * f
     fc = np.clip(f[:, 0], 0.0, 1.0)
     return np.column_stack([p, psi[k] + (psi[k + 1] - psi[k]) * fc])
+
+
+def preload(device, launches) -> float:
+    """Compile (or read from warp's kernel cache) the ``(kernel, block_dim)`` variants a run is
+    about to launch, all at once on threads (NVRTC runs outside the GIL), before any of them is
+    captured into a CUDA graph; returns the seconds it took (about 0 when all were loaded)."""
+    t0 = time.perf_counter()
+    todo = [(k.module, bd) for k, bd in launches if (device.context, bd) not in k.module.execs]
+    if len(todo) > 1:
+        with ThreadPoolExecutor(max_workers=len(todo)) as pool:
+            for f in [pool.submit(m.load, device, bd) for m, bd in todo]:
+                f.result()
+    elif todo:
+        todo[0][0].load(device, todo[0][1])
+    return time.perf_counter() - t0
 
 
 class VehicleSim:
@@ -793,6 +821,11 @@ class VehicleSim:
         cfg.lost_limit = int(round(lost_after_s / dt))
         n_slices = 4 * cfg.nl
         slices = wp.zeros((n, n_slices if mode == "full" else 1), dtype=wp.vec4, device=dev)
+        use_split = mode == "full" and (dev.is_cuda if split is None else split)
+        compile_s = 0.0
+        if dev.is_cuda and use_split:
+            compile_s = preload(dev, [(init_full_kernel, init_full_kernel.module.options["block_dim"]),
+                                      (contact_kernel, block_dims[0]), (step_kernel, block_dims[1])])
         t0 = time.perf_counter()
         if mode == "full":
             wp.launch(init_full_kernel, dim=n, inputs=[self.mesh.id, fl, st, cfg, self.ztop], device=dev)
@@ -823,7 +856,7 @@ class VehicleSim:
             sub = steps_per_launch or 1000
             for _ in range((max_steps + sub - 1) // sub):
                 wp.launch(quarter_kernel, dim=n, inputs=[self.mesh.id, fl, st, cfg, out, sub], device=dev)
-        elif (dev.is_cuda if split is None else split):
+        elif use_split:
             def one_step():
                 wp.launch(contact_kernel, dim=(n, n_slices), inputs=[self.mesh.id, fl, st, cfg, slices], device=dev,
                           block_dim=block_dims[0])
@@ -856,7 +889,8 @@ class VehicleSim:
                "tire_f": out.tire_f.numpy().astype(np.float64), "susp": out.susp.numpy().astype(np.float64),
                "valid": (nsteps // imu_every).astype(np.int64), "dead": st.dead.numpy().astype(bool),
                "steps": st.step.numpy().astype(np.int64), "wall_s": wall, "bvh_s": self.bvh_s,
-               "sim_s": float((nsteps * dt).sum()), "imu_dt": imu_every * dt, "dt": dt, "mode": mode}
+               "sim_s": float((nsteps * dt).sum()), "compile_s": compile_s, "imu_dt": imu_every * dt, "dt": dt,
+               "mode": mode}
         # x, y, yaw from the paths (they are prescribed)
         xyz = np.full((n, T, 3), np.nan)
         for i, veh in enumerate(vehicles):

@@ -32,6 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+# nothing here is differentiated: no backward (adjoint) code, which cost most of the compile time
+wp.set_module_options({"enable_backward": False})
+
 WRAP_MODES = {"repeat": 0, "clamp": 1, "mirror": 2}
 
 

@@ -12,6 +12,7 @@ plugins does not load it.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Iterable, Iterator, Sequence
 
@@ -122,6 +123,36 @@ class WarpRenderer:
         before the first frame is rendered. ``look``: a per-frame material look
         (:class:`roadtwin_core.render.scene_look.MaterialLook`: material remap, diffuse scale,
         sky tint) for these frames; None = the stage's materials as they are."""
+        prepared, cameras, params, light, material_look = self._setup(scene, cameras, params, look)
+        return self._frames(prepared, cameras, params, light, material_look)
+
+    def render_events(self, scene, cameras: Sequence[Camera], times: Sequence[float],
+                      params: RenderParams | None = None, progress=None, any_device: bool = False,
+                      **camera) -> tuple[dict, dict] | None:
+        """The event stream of a drive (``cameras`` at ``times``), simulated where the frames are:
+        on a CUDA device each view is shaded and handed to the warp event camera in device memory
+        (same events as ``roadtwin_core.render.EventSimulator``; ``camera``: its keyword
+        arguments). Returns ``(events, simulator params)``, or None on a CPU device, where the
+        caller runs the numpy reference on rendered frames (``any_device``: run it there too)."""
+        params = dataclasses.replace(check_params(params or RenderParams(), "renderer warp"), shade=True)
+        cameras = list(cameras)
+        if not (any_device or self.prepare(scene, params).device.startswith("cuda")) or not cameras:
+            return None
+        prepared, cameras, params, light, material_look = self._setup(scene, cameras, params, None)
+        from .event_kernels import WarpEventSimulator
+
+        _rc().set_material_look(prepared.rs.textures, *material_look, prepared.rs.device)
+        k = cameras[0].intrinsics
+        sim = WarpEventSimulator(k.width, k.height, device=prepared.device, **camera)
+        chunks = []
+        for i, (cam, t) in enumerate(zip(cameras, times)):
+            _c, gb = self._view(prepared, cam, params, light, slot=0)
+            chunks.append(sim.step(gb.rgb, float(t)))
+            if progress:
+                progress(i + 1, len(cameras))
+        return {key: np.concatenate([c[key] for c in chunks]) for key in ("x", "y", "t", "p")}, sim.params()
+
+    def _setup(self, scene, cameras, params, look):
         params = check_params(params or RenderParams(), "renderer warp")
         if params.weather not in WEATHERS:
             raise RoadtwinError(f"unknown weather {params.weather!r} (known: {', '.join(WEATHERS)})")
@@ -140,7 +171,7 @@ class WarpRenderer:
             remap, scale = look.remap, look.albedo_scale
         else:
             remap, scale = np.arange(n), np.ones((n, 3))
-        return self._frames(prepared, cameras, params, rc.make_light(spec), (remap, scale))
+        return prepared, cameras, params, rc.make_light(spec), (remap, scale)
 
     def _frames(self, prepared, cameras, params, light, material_look) -> Iterator[Frame]:
         try:

@@ -265,27 +265,45 @@ def load_poses_file(path: str | Path) -> list[np.ndarray]:
     path = Path(path)
     if not path.exists():
         raise RoadtwinError(f"{path}: no such poses file")
+    if not path.is_file():
+        raise RoadtwinError(f"{path}: is not a file (expected a JSON poses file)")
     try:
-        data = json.loads(path.read_text())
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise RoadtwinError(f"{path}: not a JSON poses file ({exc})") from None
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError, OSError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RoadtwinError(f"{path}: not a JSON poses file ({first})") from None
     items = data.get("poses", data.get("frames")) if isinstance(data, dict) else data
     if not isinstance(items, list) or not items:
         raise RoadtwinError(f"{path}: no poses (expected a non-empty list, or {{\"poses\": [...]}})")
     poses = []
     for k, item in enumerate(items):
         try:
+            if not isinstance(item, dict):
+                raise TypeError(f"got {type(item).__name__}")
             if "cam_to_world" in item:
                 m = np.asarray(item["cam_to_world"], dtype=np.float64)
             else:
-                m = look_from(item["position"], math.radians(item.get("yaw_deg", 0.0)),
-                              math.radians(item.get("pitch_deg", 0.0)), math.radians(item.get("roll_deg", 0.0)))
+                pos = np.asarray(item["position"], dtype=np.float64)
+                if pos.shape != (3,):
+                    raise ValueError(f"position must be [x, y, z], got {item['position']!r}")
+                angles = [float(item.get(key, 0.0)) for key in ("yaw_deg", "pitch_deg", "roll_deg")]
+                if not np.isfinite(angles).all():
+                    raise ValueError(f"angles must be finite, got {angles}")
+                m = look_from(pos, *map(math.radians, angles))
         except (TypeError, KeyError, ValueError) as exc:
             raise RoadtwinError(f"{path}: pose {k}: needs cam_to_world or position (+ yaw_deg, pitch_deg) ({exc})") from None
         if m.shape != (4, 4) or not np.isfinite(m).all():
             raise RoadtwinError(f"{path}: pose {k}: cam_to_world must be a finite 4x4 matrix")
+        r = m[:3, :3]
+        if not np.allclose(r.T @ r, np.eye(3), atol=1e-4) or np.linalg.det(r) < 0 or not np.allclose(m[3], [0, 0, 0, 1]):
+            raise RoadtwinError(f"{path}: pose {k}: cam_to_world is not a rigid transform (rotation orthonormal, det +1)")
+        if np.abs(m[:3, 3]).max() > MAX_COORD_M:
+            raise RoadtwinError(f"{path}: pose {k}: position {m[:3, 3].tolist()} is absurdly far (beyond {MAX_COORD_M:g} m)")
         poses.append(m)
     return poses
+
+
+MAX_COORD_M = 1e7  # a camera farther than 10,000 km from the origin is a corrupt file
 
 
 # ------------------------------------------------------------------------------ rig presets

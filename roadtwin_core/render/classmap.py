@@ -153,9 +153,15 @@ def load_class_map(spec: str | Path) -> ClassMap:
             raise RoadtwinError(f"no class map {str(spec)!r}: not a file, nor a built-in one "
                                 f"({', '.join(builtin_class_maps())})")
         return parse_class_map(res.read_text(encoding="utf-8"), source=f"{spec} (built-in)")
+    if path.is_dir():
+        raise RoadtwinError(f"{path}: is a directory, not a class map file")
     if not path.is_file():
         raise RoadtwinError(f"{path}: no such class map file")
-    return parse_class_map(path.read_text(encoding="utf-8"), source=str(path))
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RoadtwinError(f"{path}: cannot read the class map ({exc})") from None
+    return parse_class_map(text, source=str(path))
 
 
 def _names(value, what: str, source: str) -> list[str]:

@@ -21,7 +21,8 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..errors import RoadtwinError
 from ..model import ComposeRules, FixedDefect, LaneMarking, RoadSegment, TownLayout
-from .stage import new_stage, read_mesh, set_kind, write_mesh
+from .checks import FaceBudget, check_points, open_stage
+from .stage import _array, new_stage, read_mesh, set_kind, write_mesh
 
 SEGMENT_KIND = "roadtwin:segment:kind"
 CENTERLINE = "roadtwin:segment:centerline"
@@ -40,16 +41,7 @@ _RULE_ATTRS = {"defectCount": "defect_count", "seed": "seed", "surface": "surfac
 
 def open_layout_stage(path: Path) -> Usd.Stage:
     """Open and check a layout: exists, is USD, Z up, meters, has a default prim."""
-    if not path.exists():
-        raise RoadtwinError(f"{path}: no such file")
-    if path.is_dir():
-        raise RoadtwinError(f"{path}: is a directory, expected a USD layout file")
-    try:
-        stage = Usd.Stage.Open(str(path))
-    except Exception:
-        stage = None
-    if stage is None:
-        raise RoadtwinError(f"{path}: not a USD file (could not be opened as .usd/.usda/.usdc)")
+    stage = open_stage(path, "USD layout file", default_prim=False)
     up = UsdGeom.GetStageUpAxis(stage)
     if up != UsdGeom.Tokens.z:
         raise RoadtwinError(f"{path}: upAxis is {up}; roadtwin layouts must be Z-up (set upAxis = \"Z\")")
@@ -69,6 +61,7 @@ def read_layout(path: str | Path) -> TownLayout:
     fixed: list[FixedDefect] = []
     terrain = None
     markings: list[LaneMarking] = []
+    budget = FaceBudget(path)
     for prim in Usd.PrimRange(root):
         if prim.HasAttribute(MARKING + "type"):
             # Only the curves are layout data; a composed stage's draped marking meshes may carry
@@ -80,19 +73,23 @@ def read_layout(path: str | Path) -> TownLayout:
             fixed.append(_read_fixed(prim, path))
             continue
         if prim.HasAttribute(TERRAIN) and prim.IsA(UsdGeom.Points):
-            terrain = np.asarray(UsdGeom.Points(prim).GetPointsAttr().Get(), dtype=np.float64).reshape(-1, 3)
-            if not np.isfinite(terrain).all():
-                raise RoadtwinError(f"{path}: terrain {prim.GetPath()} has NaN points")
+            terrain = _array(UsdGeom.Points(prim).GetPointsAttr(), f"{path}: terrain {prim.GetPath()}", np.float64, 3)
+            check_points(terrain, f"{path}: terrain {prim.GetPath()}")
             continue
-        if not prim.IsA(UsdGeom.Mesh) or not prim.HasAttribute(SEGMENT_KIND):
+        if not prim.HasAttribute(SEGMENT_KIND):
             continue
         what = f"{path}: segment {prim.GetPath()}"
-        pts, faces = read_mesh(UsdGeom.Mesh(prim))
+        if not prim.IsA(UsdGeom.Mesh):
+            raise RoadtwinError(f"{what} is a {prim.GetTypeName() or 'typeless prim'}, expected a Mesh "
+                                f"(only Mesh prims carry {SEGMENT_KIND})")
+        pts, faces = read_mesh(UsdGeom.Mesh(prim), budget=budget)
         if len(pts) < 3 or len(faces) == 0:
             raise RoadtwinError(f"{what} has no triangles")
         if not np.isfinite(pts).all():
             raise RoadtwinError(f"{what} has NaN or inf points")
-        center = prim.GetAttribute(CENTERLINE).Get() if prim.HasAttribute(CENTERLINE) else None
+        center = _array(prim.GetAttribute(CENTERLINE), what, np.float64, 2) if prim.HasAttribute(CENTERLINE) else None
+        if center is not None:
+            check_points(center, f"{what} {CENTERLINE}")
         attrs = {a.GetName().split(":")[-1]: a.Get() for a in prim.GetAttributes()
                  if a.GetName().startswith("roadtwin:segment:") and a.GetName() not in (SEGMENT_KIND, CENTERLINE)}
         try:
@@ -118,8 +115,8 @@ def read_layout(path: str | Path) -> TownLayout:
 def _read_marking(prim: Usd.Prim, path: Path) -> LaneMarking:
     what = f"{path}: lane marking {prim.GetPath()}"
     curves = UsdGeom.BasisCurves(prim)
-    pts = np.asarray(curves.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
-    counts = list(curves.GetCurveVertexCountsAttr().Get() or [len(pts)])
+    pts = _array(curves.GetPointsAttr(), what, np.float64, 3)
+    counts = list(_array(curves.GetCurveVertexCountsAttr(), what, np.int64)) or [len(pts)]
     if len(counts) != 1 or counts[0] != len(pts):
         raise RoadtwinError(f"{what}: needs exactly one curve (curveVertexCounts = [{len(pts)}]), got {counts}")
     if not np.isfinite(pts).all():

@@ -13,7 +13,8 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..errors import RoadtwinError
 from ..model import DefectModel
-from .stage import apply_labels, new_stage, read_mesh, set_attrs, set_kind, write_mesh
+from .checks import open_stage
+from .stage import _array, apply_labels, new_stage, read_mesh, set_attrs, set_kind, write_mesh
 
 
 def write_defect_asset(model: DefectModel, path: str | Path) -> Path:
@@ -48,20 +49,45 @@ def write_defect_asset(model: DefectModel, path: str | Path) -> Path:
 
 
 def read_defect_asset(path: str | Path) -> DefectModel:
+    """A library asset back as a DefectModel; anything missing or malformed is one RoadtwinError
+    naming the file (and prim), since library folders hold files from other tools too."""
     path = Path(path)
     if not path.exists():
         raise RoadtwinError(f"{path}: no such defect asset")
-    stage = Usd.Stage.Open(str(path))
+    stage = open_stage(path, "defect asset")
     root = stage.GetDefaultPrim()
-    if not root:
-        raise RoadtwinError(f"{path}: defect asset has no defaultPrim")
+    type_attr = root.GetAttribute("roadtwin:defect:type")
+    defect_type = type_attr.Get() if type_attr else None
+    if not isinstance(defect_type, str) or not defect_type:
+        raise RoadtwinError(f"{path}: not a defect asset (needs a string roadtwin:defect:type on {root.GetPath()})")
     mesh_prim = next((p for p in Usd.PrimRange(root) if p.IsA(UsdGeom.Mesh)), None)
     if mesh_prim is None:
-        raise RoadtwinError(f"{path}: defect asset has no mesh (payload missing?)")
+        raise RoadtwinError(f"{path}: defect asset has no Mesh prim under {root.GetPath()} (payload missing?)")
+    where = f"{path}: mesh {mesh_prim.GetPath()}"
     pts, faces = read_mesh(UsdGeom.Mesh(mesh_prim), world=False)
-    loop = np.asarray(mesh_prim.GetAttribute("roadtwin:defect:boundaryLoop").Get(), dtype=np.int64)
+    if len(faces) == 0:
+        raise RoadtwinError(f"{where} has no triangles")
+    area = 0.5 * np.linalg.norm(np.cross(pts[faces[:, 1]] - pts[faces[:, 0]], pts[faces[:, 2]] - pts[faces[:, 0]]), axis=1)
+    if not area.sum() > 0:
+        raise RoadtwinError(f"{where}: every triangle has zero area")
+    loop_attr = mesh_prim.GetAttribute("roadtwin:defect:boundaryLoop")
+    loop = _array(loop_attr, where, np.int64) if loop_attr else np.zeros(0, dtype=np.int64)
+    if len(loop) < 3 or loop.min() < 0 or loop.max() >= len(pts):
+        raise RoadtwinError(f"{where}: roadtwin:defect:boundaryLoop needs at least 3 indices of its {len(pts)} points")
     flags = UsdGeom.PrimvarsAPI(mesh_prim).GetPrimvar("roadtwin:pseudoHeight").Get()
-    params = root.GetAttribute("roadtwin:params").Get() if root.HasAttribute("roadtwin:params") else "{}"
-    return DefectModel(root.GetName(), str(root.GetAttribute("roadtwin:defect:type").Get()), pts, faces, loop,
-                       None if flags is None else np.asarray(flags, dtype=bool),
-                       str(root.GetAttribute("roadtwin:source").Get() or path.name), json.loads(params))
+    if flags is not None:
+        flags = _array(UsdGeom.PrimvarsAPI(mesh_prim).GetPrimvar("roadtwin:pseudoHeight").GetAttr(), where, bool)
+        if len(flags) != len(pts):
+            raise RoadtwinError(f"{where}: primvars:roadtwin:pseudoHeight has {len(flags)} values for {len(pts)} points")
+    raw = root.GetAttribute("roadtwin:params").Get() if root.HasAttribute("roadtwin:params") else "{}"
+    try:
+        params = json.loads(raw)
+        if not isinstance(params, dict):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise RoadtwinError(f"{path}: roadtwin:params on {root.GetPath()} is not a JSON object") from None
+    source = root.GetAttribute("roadtwin:source").Get() if root.HasAttribute("roadtwin:source") else None
+    try:
+        return DefectModel(root.GetName(), defect_type, pts, faces, loop, flags, str(source or path.name), params)
+    except RoadtwinError as exc:
+        raise RoadtwinError(f"{path}: {str(exc).split(': ', 1)[-1]}") from None

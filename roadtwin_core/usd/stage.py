@@ -10,6 +10,7 @@ import re
 
 from pxr import Kind, Sdf, Usd, UsdGeom, UsdPhysics, UsdSemantics, Vt
 
+from ..errors import RoadtwinError
 from ..looks.catalog import ST_TILE_M
 
 LABEL_TAXONOMY = "class"
@@ -134,22 +135,57 @@ def pts_bounds(vertices: np.ndarray) -> tuple[tuple[float, ...], tuple[float, ..
     return tuple(v.min(axis=0).tolist()), tuple(v.max(axis=0).tolist())
 
 
-def read_mesh(mesh: UsdGeom.Mesh, world: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Points (world space unless told) and triangulated faces (fan split of polygons)."""
-    pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
-    idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+def read_mesh(mesh: UsdGeom.Mesh, world: bool = True, budget=None) -> tuple[np.ndarray, np.ndarray]:
+    """Points (world space unless told) and triangulated faces (fan split of polygons).
+
+    Checked on the way in (one RoadtwinError naming file and prim): topology, finite points
+    near the origin, and the triangle budget (``budget``: a :class:`.checks.FaceBudget` shared by
+    every mesh of a file; without one only the per-mesh limit applies)."""
+    from .checks import FaceBudget, check_points
+
+    where = _mesh_where(mesh)
+    pts = _array(mesh.GetPointsAttr(), where, np.float64, 3)
+    counts = _array(mesh.GetFaceVertexCountsAttr(), where, np.int64)
+    idx = _array(mesh.GetFaceVertexIndicesAttr(), where, np.int64)
     _check_topology(mesh, len(pts), counts, idx)
+    (budget or FaceBudget(where)).take(int((counts - 2).sum()) if len(counts) else 0, where)
+    check_points(pts, where)
     if world and len(pts):
         m = np.asarray(mesh.ComputeLocalToWorldTransform(Usd.TimeCode.Default()), dtype=np.float64)
+        if not np.isfinite(m).all():
+            raise RoadtwinError(f"{where}: its transform has NaN or infinite entries")
         pts = pts @ m[:3, :3] + m[3, :3]
-    faces = []
-    start = 0
-    for c in counts:
-        for k in range(1, c - 1):
-            faces.append((idx[start], idx[start + k], idx[start + k + 1]))
-        start += c
+        check_points(pts, f"{where} (world space)")
+    # Fan split, vectorized: face f with c corners starting at s gives (s, s+k, s+k+1), k=1..c-2.
+    n_tri = counts - 2
+    first = np.repeat(np.cumsum(counts) - counts, n_tri)
+    k = np.arange(int(n_tri.sum())) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    faces = np.stack([idx[first], idx[first + k], idx[first + k + 1]], axis=1) if len(k) else np.zeros((0, 3))
     return pts, np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+
+
+def _mesh_where(mesh: UsdGeom.Mesh) -> str:
+    layer = mesh.GetPrim().GetStage().GetRootLayer()
+    return f"{layer.realPath or layer.identifier}: mesh {mesh.GetPath()}"
+
+
+def _array(attr, where: str, dtype, width: int = 0) -> np.ndarray:
+    """An attribute's array value as numpy; a wrongly typed value (a string where points belong)
+    is bad input named by attribute, not a ValueError from numpy."""
+    value = attr.Get() if attr else None
+    if value is None:
+        return np.zeros((0, width) if width else 0, dtype=dtype)
+    try:
+        arr = np.asarray(value, dtype=dtype)
+        if width:
+            if arr.ndim != 2 or arr.shape[1] != width:
+                raise ValueError
+        elif arr.ndim != 1:
+            raise ValueError
+    except (TypeError, ValueError):
+        raise RoadtwinError(f"{where}: {attr.GetName()} is not an array of "
+                            f"{f'{width}-vectors' if width else 'integers'} ({attr.GetTypeName()})") from None
+    return arr
 
 
 def safe_prim_name(name: str) -> str:

@@ -19,6 +19,7 @@ from pxr import Usd, UsdGeom, UsdPhysics
 
 from ..errors import RoadtwinError
 from .looks_reader import TownMaterial, bound_material, corner_st
+from .checks import FaceBudget, open_stage
 from .stage import read_mesh
 
 
@@ -82,14 +83,8 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
     and st (see :mod:`.looks_reader`). ``variants``: variant selections on the root prim (e.g.
     ``{"roadMaterial": "cobblestone"}``), made in the session layer, never saved."""
     path = Path(path)
-    if not path.exists():
-        raise RoadtwinError(f"{path}: no such file")
-    try:
-        stage = Usd.Stage.Open(str(path))
-    except Exception:
-        stage = None
-    if stage is None or not stage.GetDefaultPrim():
-        raise RoadtwinError(f"{path}: not a USD stage with a defaultPrim")
+    stage = open_stage(path, "USD town stage")
+    budget = FaceBudget(path)
     root = stage.GetDefaultPrim()
     for vset, choice in (variants or {}).items():
         _select_variant(stage, root, vset, choice, path)
@@ -109,11 +104,14 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
         if marking and marking.HasValue():
             marking_types[str(prim.GetPath())] = str(marking.Get())
         if not prim.IsA(UsdGeom.Mesh):
+            if prim.HasAttribute("roadtwin:segment:kind"):
+                raise RoadtwinError(f"{path}: segment {prim.GetPath()} is a {prim.GetTypeName() or 'typeless prim'}, "
+                                    "expected a Mesh")
             continue
         mesh = UsdGeom.Mesh(prim)
         v = f = None
         if prim.HasAPI(UsdPhysics.CollisionAPI):  # the road and defect meshes themselves (physics.usda)
-            v, f = read_mesh(mesh)
+            v, f = read_mesh(mesh, budget=budget)
             scene.colliders.append(TownMesh(str(prim.GetPath()), "collision", v, f))
         if prim.HasAttribute("roadtwin:segment:kind"):
             target, kind = scene.roads, str(prim.GetAttribute("roadtwin:segment:kind").Get())
@@ -127,7 +125,7 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
         if UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.invisible:
             continue
         if v is None:
-            v, f = read_mesh(mesh)
+            v, f = read_mesh(mesh, budget=budget)
         if kind is None:
             kind = defects[str(prim.GetParent().GetPath())].defect_type
         tm = TownMesh(str(prim.GetPath()), kind, v, f)

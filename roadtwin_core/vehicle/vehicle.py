@@ -284,6 +284,8 @@ def vehicle_from_dict(data: dict, owner: str = "vehicle") -> VehicleParams | Qua
     if missing and extends is None:
         raise RoadtwinError(f"{owner}: missing parameter(s) {', '.join(missing)} "
                             f"(give them all, or add extends = \"default\" to take the rest from the default car)")
+    if "name" in flat and (not isinstance(flat["name"], str) or not flat["name"].strip()):
+        raise RoadtwinError(f"{owner}: name must be a non-empty string, got {flat['name']!r}")
     for k, v in flat.items():
         if k != "name" and (isinstance(v, bool) or not isinstance(v, (int, float))):
             raise RoadtwinError(f"{owner}: {k} must be a number, got {v!r}")
@@ -295,6 +297,8 @@ def load_vehicle(path: str | Path) -> VehicleParams | QuarterCarParams:
     """Read a vehicle file (``.toml`` or ``.json``)."""
     path = Path(path)
     owner = f"vehicle file {path}"
+    if path.is_dir():
+        raise RoadtwinError(f"{owner}: is a directory, not a vehicle file")
     if not path.is_file():
         raise RoadtwinError(f"{owner}: no such file")
     text = path.read_bytes()
@@ -311,6 +315,8 @@ def load_vehicle(path: str | Path) -> VehicleParams | QuarterCarParams:
     except (ValueError, UnicodeDecodeError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise RoadtwinError(f"{owner}: cannot parse: {first}") from None
+    if not isinstance(data, dict):
+        raise RoadtwinError(f"{owner}: expected a table of parameters, got a JSON {type(data).__name__}")
     data = dict(data)
     data.setdefault("name", path.stem)
     return vehicle_from_dict(data, owner)
