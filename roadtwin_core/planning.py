@@ -884,7 +884,7 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
     scene = load_town(stage)
     composed = not scene.colliders
     if composed and not scene.roads:
-        raise RoadtwinError(f"{stage}: neither a composed town (no /Collision meshes) nor a layout (no road segments)")
+        raise RoadtwinError(f"{stage}: neither a composed town (no collision meshes) nor a layout (no road segments)")
     if sweep is not None:
         from .route_decisions import load_recommendations
 
