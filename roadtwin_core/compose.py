@@ -14,7 +14,7 @@ import numpy as np
 from .atomic import atomic_output_dir
 from .errors import RoadtwinError
 from .executors import make_executor
-from .looks import write_textures
+from .looks import write_textures_cached
 from .markings import build_markings
 from .model import ComposeRules, DefectModel, Placement, TownLayout
 from .params import make_params
@@ -139,11 +139,12 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             library_files[m.name] = f"./library/{m.name}.usda"
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
                 "merger": rules.merger, "defectCount": len(placements)}
-        materials = write_textures(tmp / "textures", rules.seed)
+        materials = write_textures_cached(tmp / "textures", rules.seed)
         t_textures = time.perf_counter()
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
                                          library_files, info, markings, materials))
         report("write", 1, 1)
+        t_written = time.perf_counter()
         findings = validate_stage(town)
         errors = [f for f in findings if f.severity == "Error"]
         if errors:
@@ -151,14 +152,18 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         t_write = time.perf_counter()
         summary = _summary(layout, placements, merged, rules, findings,
                            {"place_s": t_place - t0, "merge_s": t_merge - t_place, "markings_s": t_markings - t_merge,
-                            "textures_s": t_textures - t_markings, "write_s": t_write - t_textures})
+                            "textures_s": t_textures - t_markings, "write_s": t_written - t_textures,
+                            "validate_s": t_write - t_written})
         summary["markings"] = len(markings)
         summary["materials"] = len(materials)
         if preview:
             from .preview import write_preview
+            from .preview_scene import PreviewTown
 
             write_preview(tmp / "preview.png", town, pm=pm,
-                          title=f"{layout.name}: {len(layout.segments)} segments, {len(placements)} defects")
+                          title=f"{layout.name}: {len(layout.segments)} segments, {len(placements)} defects",
+                          town=PreviewTown(layout, merged, owners, placements, markings, tmp / "layers/looks.usda"))
+            summary["timings_s"]["preview_s"] = round(time.perf_counter() - t_write, 3)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     outdir = Path(outdir).resolve()
     return ComposeResult(outdir, outdir / "town.usda", summary)
