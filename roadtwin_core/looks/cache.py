@@ -57,10 +57,14 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def write_textures_cached(folder: str | Path, seed: int = 0, size: int = DEFAULT_SIZE) -> dict[str, MaterialSpec]:
+def write_textures_cached(folder: str | Path, seed: int = 0, size: int = DEFAULT_SIZE,
+                          generate=None) -> dict[str, MaterialSpec]:
     """:func:`write_textures`, served from the cache when this seed and size were made before
-    by the same code (byte-identical files: they are that run's bytes, checked by hash)."""
+    by the same code (byte-identical files: they are that run's bytes, checked by hash).
+    ``generate``: another texture writer (same signature) to call instead, uncached."""
     root = cache_root()
+    if generate is not None and generate is not write_textures:
+        return generate(folder, seed) if size == DEFAULT_SIZE else generate(folder, seed, size)
     if root is None:
         return write_textures(folder, seed, size)
     folder = Path(folder)
