@@ -124,8 +124,14 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     owners = [by_segment.get(seg.id, []) for seg in layout.segments]
     work = [(seg, [placements[i] for i in idx]) for seg, idx in zip(layout.segments, owners)]
     runner = make_executor(executor, ray_address, workers)
-    merged = runner.map(_merge_segment, (merger_impl, surf, rules), work,
-                        lambda done, total: report("merge", done, total))
+    # Costliest first (defects dominate a segment's merge), so no core idles on one big segment
+    # at the end; results go back to layout order, so the bytes do not depend on it.
+    order = sorted(range(len(work)), key=lambda k: (-len(work[k][1]), -len(work[k][0].faces), k))
+    done_in_order = runner.map(_merge_segment, (merger_impl, surf, rules), [work[k] for k in order],
+                               lambda done, total: report("merge", done, total))
+    merged = [None] * len(work)
+    for k, m in zip(order, done_in_order):
+        merged[k] = m
     t_merge = time.perf_counter()
     markings = build_markings(layout.markings, layout.segments, merged, placements)
     report("markings", 1, 1)

@@ -60,7 +60,8 @@ def even_segment_mesh(segment: RoadSegment, edge_m: float, rims: list[tuple[np.n
     return v, out["triangles"].astype(np.int64), border_edges
 
 
-LOD_TOLERANCE_PER_EDGE = 0.004   # tolerance of a coarsened defect: 2 mm on a 0.5 m road mesh
+LOD_TOLERANCE_PER_EDGE = 0.004   # tolerance of a coarsened defect: 2 mm on a 0.5 m road mesh ...
+LOD_MAX_TOLERANCE_M = 0.002      # ... and never coarser (faithful at 1 cm between vertices, tested)
 _LOD_ROUNDS = 40
 
 
@@ -71,7 +72,7 @@ def coarsen_defect(model, edge_m: float, tol_m: float | None = None, volume_rtol
     180 points ~1 cm apart), the bulk of a town's triangles, while the road around them has
     ``edge_m`` (0.5 m) edges. Level of detail here is error-driven, so it is faithful by
     construction: every vertex of the full model stays within ``tol_m`` (default
-    ``LOD_TOLERANCE_PER_EDGE * edge_m``, 2 mm) vertically *and* horizontally (loop) of the
+    ``LOD_TOLERANCE_PER_EDGE * edge_m``, at most ``LOD_MAX_TOLERANCE_M``: 2 mm) vertically *and* horizontally (loop) of the
     coarse surface. The boundary loop keeps an ordered subset of its vertices (Douglas-Peucker,
     never more than ``edge_m / 4`` apart, so the ring between road and defect stays small); the
     inside starts from the deepest and highest vertices and adds, round by round, the
@@ -86,7 +87,7 @@ def coarsen_defect(model, edge_m: float, tol_m: float | None = None, volume_rtol
     """
     if model.pseudo_height is not None and int(model.pseudo_height.sum()) != len(model.boundary):
         return model
-    tol = float(tol_m if tol_m is not None else LOD_TOLERANCE_PER_EDGE * edge_m)
+    tol = float(tol_m if tol_m is not None else min(LOD_TOLERANCE_PER_EDGE * edge_m, LOD_MAX_TOLERANCE_M))
     for _ in range(5):
         coarse = _coarsen(model, edge_m, tol)
         if coarse is None:
@@ -125,10 +126,13 @@ def _coarsen(model, edge_m: float, tol: float):
     if len(keep_loop) < 3:
         return None
     coarse_loop = loop[keep_loop]
-    interior = np.setdiff1d(np.arange(len(v)), loop)
-    if not len(interior):
+    # Checked: every full-model vertex but the kept loop, including the dropped loop vertices
+    # (z = 0: where the loop is concave they lie inside the coarse footprint, over the dip).
+    interior = np.setdiff1d(np.arange(len(v)), coarse_loop)
+    if not len(np.setdiff1d(interior, loop)):
         return None
-    chosen = list(dict.fromkeys([int(interior[np.argmin(v[interior, 2])]), int(interior[np.argmax(v[interior, 2])])]))
+    inner = np.setdiff1d(interior, loop)
+    chosen = list(dict.fromkeys([int(inner[np.argmin(v[inner, 2])]), int(inner[np.argmax(v[inner, 2])])]))
     n = len(coarse_loop)
     segs = np.column_stack([np.arange(n), (np.arange(n) + 1) % n])
     for _ in range(_LOD_ROUNDS):

@@ -13,7 +13,6 @@ from roadtwin_core.plugins import get_plugin_manager
 from roadtwin_core.remesh import coarsen_defect
 
 TYPES = ["bump", "crack", "depression", "manhole", "patch", "pothole", "rut"]
-EDGE_M = 0.5
 TOL_M = 0.002
 
 
@@ -22,8 +21,9 @@ def surface_at(model, xy):
     return np.ma.filled(LinearTriInterpolator(tri, model.vertices[:, 2])(xy[:, 0], xy[:, 1]), 0.0)
 
 
-@pytest.fixture(scope="module")
-def pairs():
+@pytest.fixture(scope="module", params=[0.5, 1.0], ids=["edge0.5m", "edge1m"])
+def pairs(request):
+    """(type, full, coarse) on the default 0.5 m road mesh and Town01's 1 m one (same 2 mm cap)."""
     pm = get_plugin_manager()
     out = []
     for t in TYPES:
@@ -31,7 +31,7 @@ def pairs():
         for k in range(3):
             rng = np.random.default_rng([11, k, len(t)])
             full = dtype.generate(dtype.sample_params(rng), rng, f"{t}_{k}")
-            out.append((t, full, coarsen_defect(full, EDGE_M)))
+            out.append((t, full, coarsen_defect(full, request.param)))
     return out
 
 
@@ -64,7 +64,8 @@ def test_merger_contract_kept(pairs):
         full_loop = {tuple(p) for p in full.vertices[full.boundary, :2].tolist()}
         assert all(tuple(p) in full_loop for p in coarse.vertices[:n, :2].tolist()), t   # a subset, in order
         gaps = np.linalg.norm(np.diff(np.vstack([coarse.footprint, coarse.footprint[:1]]), axis=0), axis=1)
-        assert gaps.max() <= EDGE_M / 4 + 1e-9, t
+        assert gaps.max() <= 1.0 / 4 + 1e-9, t                  # a quarter of the road edge at most
+        assert gaps.max() > 0.02, t                               # and no longer the 1 cm loop
 
 
 def test_far_fewer_triangles(pairs):
