@@ -81,7 +81,6 @@ class PreviewTown:
                 materials.append(render_material(stage_mats[name]))
             return mat_slot[name]
 
-        p_slot = None
         verts, faces, fcls, finst, fmat, fuv, offset = [], [], [], [], [], [], 0
         for v, f, label, placement, mat, road_st, defect_st in self._parts():
             sel = keep(v, f) if keep is not None else np.ones(len(f), bool)
@@ -96,9 +95,12 @@ class PreviewTown:
             fcls.append(cls)
             finst.append((placement + 1).astype(np.int32))
             if looks:
-                if p_slot is None:
-                    p_slot = np.array([slot(n) for n in p_mat] or [0], np.int32)
-                fmat.append(np.where(defect, p_slot[np.maximum(placement, 0)], slot(mat)).astype(np.int32))
+                # decode only the materials in view (a 1024 px material is ~30 MB as float images)
+                used = np.unique(placement[defect])
+                lut = np.zeros(max(len(p_mat), 1), np.int32)
+                lut[used] = [slot(p_mat[i]) for i in used]
+                road_slot = slot(mat) if (~defect).any() else 0
+                fmat.append(np.where(defect, lut[np.maximum(placement, 0)], road_slot).astype(np.int32))
                 uv = np.asarray(road_st(v), np.float32)[f]
                 if defect.any():
                     uv[defect] = np.asarray(defect_st(v), np.float32)[f[defect]]
