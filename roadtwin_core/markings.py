@@ -96,6 +96,7 @@ class RoadSurface:
         self.polygons = [s.polygon() for s in segments]
         self.outline_tree = shapely.STRtree(self.polygons)
         self.merged = merged
+        self._centroids: dict[int, tuple[np.ndarray, float]] = {}
 
     def near(self, geom) -> np.ndarray:
         """Indices of the segments whose outline touches ``geom``."""
@@ -104,18 +105,35 @@ class RoadSurface:
     def outline(self, segment_ids: np.ndarray) -> shapely.Geometry:
         return shapely.union_all([self.polygons[i] for i in segment_ids])
 
+    def _segment_index(self, i: int) -> tuple[np.ndarray, float]:
+        """(triangle centroids (T, 2), longest edge) of segment ``i``, computed once: a long
+        marking crosses many segments and a segment carries many markings."""
+        if i not in self._centroids:
+            m = self.merged[i]
+            xy = m.vertices[:, :2]
+            a, b, c = xy[m.faces[:, 0]], xy[m.faces[:, 1]], xy[m.faces[:, 2]]
+            reach = float(np.sqrt(max(((b - a) ** 2).sum(1).max(), ((c - b) ** 2).sum(1).max(),
+                                      ((a - c) ** 2).sum(1).max()))) if len(m.faces) else 0.0
+            self._centroids[i] = ((a + b + c) / 3.0, reach)
+        return self._centroids[i]
+
     def patch(self, segment_ids: np.ndarray, paint) -> "RoadPatch":
         """The triangles of those segments that may touch ``paint``: those whose centroid lies
-        within their segment's longest edge of it (a triangle touching the paint always does)."""
+        within their segment's longest edge of it (a triangle touching the paint always does).
+        A bounding-box test first, so the exact test only sees the triangles near the paint."""
         tris = []
+        x0, y0, x1, y1 = paint.bounds
         for i in segment_ids:
             m = self.merged[i]
-            t = m.vertices[m.faces]
-            reach = float(np.linalg.norm(t[:, [1, 2, 0], :2] - t[:, :, :2], axis=-1).max())
-            c = t[:, :, :2].mean(axis=1)
+            cen, reach = self._segment_index(int(i))
+            box = np.flatnonzero((cen[:, 0] >= x0 - reach) & (cen[:, 0] <= x1 + reach)
+                                 & (cen[:, 1] >= y0 - reach) & (cen[:, 1] <= y1 + reach))
+            if not len(box):
+                continue
             zone = shapely.buffer(paint, reach, quad_segs=2)
             shapely.prepare(zone)
-            tris.append(t[shapely.contains_xy(zone, c[:, 0], c[:, 1])])
+            sel = box[shapely.contains_xy(zone, cen[box, 0], cen[box, 1])]
+            tris.append(m.vertices[m.faces[sel]])
         return RoadPatch(np.concatenate(tris) if tris else np.zeros((0, 3, 3)))
 
 

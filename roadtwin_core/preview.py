@@ -5,9 +5,13 @@ through the plugin manager) from a camera 2 m above a driving lane, looking alon
 lane spot with the most defects 5-20 m ahead (markings come into view with the lane); right,
 the top-down map (roads shaded by elevation, defects red, markings white), rasterized in numpy
 (pixel-centre tests, vectorized over the triangles; not one matplotlib artist per triangle: well
-under a second for a 1,000-defect town on an idle core). Both are read back from the written town stage, looks
-included, so the preview shows exactly what other tools will. Without a usable renderer (warp
-not installed, plugin not loaded) the map stands alone with a note saying why.
+under a second for a 1,000-defect town on an idle core). Given a stage path alone, both are read
+back from the written stage, looks included. The composer instead passes the town it holds in
+memory (:class:`~roadtwin_core.preview_scene.PreviewTown`): the same triangles, labels and st
+through the writer's own functions, the materials parsed from the stage's looks layer, and only
+the road within 150 m of the camera in the ray-casting scene (reading Town01 back cost ~6 s).
+Without a usable renderer (warp not installed, plugin not loaded) the map stands alone with a
+note saying why.
 """
 from __future__ import annotations
 
@@ -160,8 +164,11 @@ def rasterize_map(mesh, width_px: int = 900) -> tuple[np.ndarray, tuple, tuple]:
     return img, (lo[0], hi[0], lo[1], hi[1]), (zlo, zhi)
 
 
-def render_view(town_stage: Path, mesh, pm) -> tuple[np.ndarray | None, str, PreviewSpot | None, object]:
-    """(sRGB uint8 image or None, note, spot, camera) of the perspective view."""
+def render_view(town_stage: Path, mesh, pm, lanes=None, view_mesh=None
+                ) -> tuple[np.ndarray | None, str, PreviewSpot | None, object]:
+    """(sRGB uint8 image or None, note, spot, camera) of the perspective view. ``lanes``
+    (default: read from the stage) and ``view_mesh(spot) -> RenderMesh`` (default: ``mesh``
+    itself) let a caller that holds the town in memory skip reading the stage back."""
     from .render import Camera, GroundSampler, Intrinsics, RenderParams, look_from, stage_lanes, to_srgb8
     from .render.cameras import vehicle_height
 
@@ -169,7 +176,8 @@ def render_view(town_stage: Path, mesh, pm) -> tuple[np.ndarray | None, str, Pre
         renderer = pm.get("renderers", "warp")
     except RoadtwinError as exc:
         return None, f"no perspective view: {exc}", None, None
-    lanes = stage_lanes(town_stage)
+    if lanes is None:
+        lanes = stage_lanes(town_stage)
     if not lanes:
         return None, "no perspective view: the town has no driving lane centrelines", None, None
     centres = []
@@ -179,7 +187,10 @@ def render_view(town_stage: Path, mesh, pm) -> tuple[np.ndarray | None, str, Pre
             centres.append(pose[:2])
     spot = choose_spot(lanes, np.asarray(centres, float).reshape(-1, 2))
     # the road under the camera only: a sampler over the whole town costs seconds and GBs on Town01
-    near = (np.abs(mesh.vertices[mesh.faces][:, :, :2] - spot.xy).max(axis=(1, 2)) < 10.0)
+    v2 = mesh.vertices[:, :2]
+    vnear = (np.abs(v2 - spot.xy) < 10.0).all(axis=1)
+    f = mesh.faces
+    near = vnear[f[:, 0]] & vnear[f[:, 1]] & vnear[f[:, 2]]
     ground = GroundSampler(SimpleNamespace(vertices=mesh.vertices, faces=mesh.faces[near]))
     z = vehicle_height(ground, spot.xy[None], np.array([spot.heading]))[0]
     if not np.isfinite(z):
@@ -189,15 +200,18 @@ def render_view(town_stage: Path, mesh, pm) -> tuple[np.ndarray | None, str, Pre
     pos = (spot.xy[0], spot.xy[1], z + CAMERA_HEIGHT_M)
     cam = Camera(Intrinsics.from_fov(*RENDER_SIZE, RENDER_HFOV_DEG), look_from(pos, spot.heading, pitch))
     try:
-        frame = next(iter(renderer.render(mesh, [cam], RenderParams())))
+        scene = view_mesh(spot) if view_mesh is not None else mesh
+        frame = next(iter(renderer.render(scene, [cam], RenderParams())))
     except ImportError as exc:                       # the plugin loaded but its engine (warp) did not
         return None, f"no perspective view: renderer warp unavailable ({exc})", spot, cam
     return to_srgb8(frame.rgb), "", spot, cam
 
 
-def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: int = 100) -> dict:
+def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: int = 100, town=None) -> dict:
     """Write the preview PNG of the composed ``town_stage``; returns what it shows
-    (``spot``, ``camera``, ``note`` when the perspective view is missing, timings)."""
+    (``spot``, ``camera``, ``note`` when the perspective view is missing, timings).
+    ``town``: the :class:`~roadtwin_core.preview_scene.PreviewTown` the composer just wrote
+    (meshes in memory, materials read from the stage's looks layer), so nothing is read back."""
     import time
 
     import matplotlib
@@ -212,8 +226,12 @@ def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: i
 
     t0 = time.perf_counter()
     pm = pm or get_plugin_manager()
-    mesh = build_render_mesh(load_town(town_stage, looks=True))
-    view, note, spot, cam = render_view(Path(town_stage), mesh, pm)
+    if town is not None:
+        mesh = town.map_mesh()
+        view, note, spot, cam = render_view(Path(town_stage), mesh, pm, town.lanes(), town.view_mesh)
+    else:
+        mesh = build_render_mesh(load_town(town_stage, looks=True))
+        view, note, spot, cam = render_view(Path(town_stage), mesh, pm)
     t_render = time.perf_counter()
     img, extent, (zlo, zhi) = rasterize_map(mesh)
     t_map = time.perf_counter()

@@ -58,3 +58,103 @@ def even_segment_mesh(segment: RoadSegment, edge_m: float, rims: list[tuple[np.n
         what = "outline or defect rims" if len(rims) else "outline"
         raise RoadtwinError(f"road segment {segment.id!r}: {what} have duplicate or crossing vertices")
     return v, out["triangles"].astype(np.int64), border_edges
+
+
+LOD_TOLERANCE_PER_EDGE = 0.004   # tolerance of a coarsened defect: 2 mm on a 0.5 m road mesh ...
+LOD_MAX_TOLERANCE_M = 0.002      # ... and never coarser (faithful at 1 cm between vertices, tested)
+_LOD_ROUNDS = 40
+
+
+def coarsen_defect(model, edge_m: float, tol_m: float | None = None, volume_rtol: float = 0.005):
+    """The defect model with as few vertices as keep it faithful to the road it goes into.
+
+    Why: parametric generators sample a defect finely everywhere (up to ~1,800 triangles, loops of
+    180 points ~1 cm apart), the bulk of a town's triangles, while the road around them has
+    ``edge_m`` (0.5 m) edges. Level of detail here is error-driven, so it is faithful by
+    construction: every vertex of the full model stays within ``tol_m`` (default
+    ``LOD_TOLERANCE_PER_EDGE * edge_m``, at most ``LOD_MAX_TOLERANCE_M``: 2 mm) vertically *and* horizontally (loop) of the
+    coarse surface. The boundary loop keeps an ordered subset of its vertices (Douglas-Peucker,
+    never more than ``edge_m / 4`` apart, so the ring between road and defect stays small); the
+    inside starts from the deepest and highest vertices and adds, round by round, the
+    worst-fitting full-model vertex of every coarse triangle that misses the tolerance (greedy
+    insertion, as in terrain simplification), re-triangulated with Triangle (no new points). The
+    deepest and highest points are kept, so depth and height are exact.
+
+    A piecewise-linear fit within ``tol_m`` can still bias the volume of a shallow, wide defect
+    (a convex bowl is cut by every chord): when the volume moves by more than ``volume_rtol``, the
+    tolerance is halved and the fit redone (at most 4 times, then the full model is kept).
+    Models with pseudo-height vertices off the boundary (reconstructed ones) come back unchanged.
+    """
+    if model.pseudo_height is not None and int(model.pseudo_height.sum()) != len(model.boundary):
+        return model
+    tol = float(tol_m if tol_m is not None else min(LOD_TOLERANCE_PER_EDGE * edge_m, LOD_MAX_TOLERANCE_M))
+    for _ in range(5):
+        coarse = _coarsen(model, edge_m, tol)
+        if coarse is None:
+            return model
+        if abs(coarse.signed_volume_m3 - model.signed_volume_m3) <= max(volume_rtol * model.volume_m3, 1e-9):
+            return coarse
+        tol /= 2.0
+    return model
+
+
+def _coarsen(model, edge_m: float, tol: float):
+    """One error-driven fit (see :func:`coarsen_defect`); None when it cannot be done."""
+    import shapely
+    from matplotlib.tri import LinearTriInterpolator, Triangulation
+
+    from .model import DefectModel
+
+    v, loop = model.vertices, np.asarray(model.boundary)
+    # Loop: Douglas-Peucker subset, then put back vertices where a gap exceeds edge_m / 4.
+    ring = np.vstack([v[loop, :2], v[loop[:1], :2]])
+    simple = np.asarray(shapely.simplify(shapely.linestrings(ring), tol, preserve_topology=True).coords)[:-1]
+    index = {tuple(p): k for k, p in enumerate(v[loop, :2].tolist())}
+    keep_loop = sorted({index[tuple(p)] for p in simple.tolist()} | {0})
+    out = []
+    gap = edge_m / 4.0
+    for a, b in zip(keep_loop, keep_loop[1:] + [keep_loop[0] + len(loop)]):
+        out.append(a)
+        span = np.arange(a, b) % len(loop)
+        s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(v[loop[np.r_[span, b % len(loop)]], :2], axis=0), axis=1))]
+        last = 0.0
+        for j in range(1, len(span)):        # keep a vertex wherever skipping it would open a gap
+            if s[j + 1] - last > gap:
+                out.append(int(span[j]))
+                last = s[j]
+    keep_loop = np.array(sorted(set(out)), dtype=np.int64)
+    if len(keep_loop) < 3:
+        return None
+    coarse_loop = loop[keep_loop]
+    # Checked: every full-model vertex but the kept loop, including the dropped loop vertices
+    # (z = 0: where the loop is concave they lie inside the coarse footprint, over the dip).
+    interior = np.setdiff1d(np.arange(len(v)), coarse_loop)
+    if not len(np.setdiff1d(interior, loop)):
+        return None
+    inner = np.setdiff1d(interior, loop)
+    chosen = list(dict.fromkeys([int(inner[np.argmin(v[inner, 2])]), int(inner[np.argmax(v[inner, 2])])]))
+    n = len(coarse_loop)
+    segs = np.column_stack([np.arange(n), (np.arange(n) + 1) % n])
+    for _ in range(_LOD_ROUNDS):
+        ids = np.concatenate([coarse_loop, chosen])
+        out_t = triangle.triangulate({"vertices": v[ids, :2], "segments": segs}, "pYYQ")
+        if len(out_t["vertices"]) != len(ids):
+            return None                      # Triangle had to add points: keep the full model
+        tris = out_t["triangles"].astype(np.int64)
+        tri = Triangulation(v[ids, 0], v[ids, 1], tris)
+        z = LinearTriInterpolator(tri, v[ids, 2])(v[interior, 0], v[interior, 1])
+        err = np.abs(np.ma.filled(z, 0.0) - v[interior, 2])   # outside the coarse loop: the road plane
+        bad = err > tol
+        bad[np.isin(interior, chosen)] = False
+        if not bad.any():
+            break
+        owner = tri.get_trifinder()(v[interior, 0], v[interior, 1])
+        cand = np.flatnonzero(bad)
+        order = cand[np.lexsort((-err[cand], owner[cand]))]       # per triangle, worst first
+        first = np.r_[True, owner[order][1:] != owner[order][:-1]]
+        chosen.extend(int(i) for i in interior[order[first]])
+    else:
+        return None
+    ids = np.concatenate([coarse_loop, chosen])
+    return DefectModel(name=model.name, defect_type=model.defect_type, vertices=v[ids].copy(), faces=tris,
+                       boundary=np.arange(n), source=model.source, params=dict(model.params))

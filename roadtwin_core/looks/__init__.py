@@ -13,7 +13,8 @@ from .catalog import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL
                       ST_TILE_M, VERGE_MATERIAL_VARIANTS, MaterialSpec, all_materials, defect_material, kind_material,
                       marking_material)
 from .textures import write_textures
+from .cache import write_textures_cached
 
 __all__ = ["DEFECT_MATERIAL", "KIND_MATERIAL", "MARKING_MATERIAL", "OPTIONAL_MATERIALS", "ROAD_MATERIAL_VARIANTS",
            "ST_TILE_M", "VERGE_MATERIAL_VARIANTS", "MaterialSpec", "all_materials", "defect_material", "kind_material",
-           "marking_material", "write_textures"]
+           "marking_material", "write_textures", "write_textures_cached"]

@@ -1,0 +1,150 @@
+"""The town the composer just wrote, as the preview needs it, without reading the stage back.
+
+Why: reading a 1,000-defect Town01 back with its looks (every mesh, every st primvar) and
+building a ray-casting scene over its 1.8 M triangles took ~6-20 s; the preview needs the map
+(geometry and labels only) and one view of the road around one camera. Geometry, labels and
+st come from the composer's in-memory meshes, through the same functions the writer uses
+(``segment_st`` / ``planar_st``, the catalog's binding rules); the materials themselves are
+parsed from the stage's own looks layer (``layers/looks.usda``, a small file), so the view
+shows the stage's materials. tests/test_preview_scene.py checks the result against
+``build_render_mesh(load_town(stage, looks=True))``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .looks.catalog import defect_material, kind_material, marking_material
+from .model import MergedSegment, Placement, TownLayout
+
+VIEW_RANGE_M = 150.0     # road drawn in the perspective view: this far around the camera ...
+VIEW_BEHIND_M = 5.0      # ... and no more than this behind it
+
+
+@dataclass
+class PreviewTown:
+    layout: TownLayout
+    merged: list[MergedSegment]
+    owners: list[list[int]]
+    placements: list[Placement]
+    markings: list = field(default_factory=list)
+    looks_layer: Path | None = None
+
+    def lanes(self):
+        from .render import Lane
+
+        return [Lane(s.id, np.asarray(s.centerline, float)) for s in self.layout.segments
+                if s.kind == "driving" and s.centerline is not None and len(s.centerline) >= 2]
+
+    def _parts(self):
+        """Per merged segment and per marking: (vertices, faces, class per face, instance per
+        face, material name per face, st-function per face group). Whole segments at a time
+        (numpy lookups by face owner), not one array per defect piece: a 10,000-defect town has
+        ~12,000 pieces."""
+        from .usd.stage import planar_st
+        from .usd.town import segment_st
+
+        for seg, m, own in zip(self.layout.segments, self.merged, self.owners):
+            own = np.asarray(own, dtype=np.int64)
+            is_defect = m.face_owner >= 0
+            placement = np.where(is_defect, own[np.maximum(m.face_owner, 0)] if len(own) else -1, -1)
+            yield (m.vertices, m.faces, seg.kind, placement, kind_material(seg.kind),
+                   (lambda v, seg=seg: segment_st(seg, v)), planar_st)
+        for mk in self.markings:
+            yield (mk.vertices, mk.faces, "lane_marking", np.full(len(mk.faces), -1), marking_material(mk.color),
+                   planar_st, planar_st)
+
+    def _instances(self, classes):
+        return [{"id": k, "defect_id": p.instance_id, "type": p.model.defect_type,
+                 "class_id": classes.index(p.model.defect_type),
+                 "attributes": {"poseXYYaw": [p.x, p.y, p.yaw]}} for k, p in enumerate(self.placements, 1)]
+
+    def _mesh(self, keep=None, looks: bool = False):
+        from .render.scene import DEFAULT_MATERIAL, RenderMesh, class_names, render_material
+
+        dtypes = sorted({p.model.defect_type for p in self.placements})
+        classes = class_names(dtypes, [s.kind for s in self.layout.segments])
+        cid = {n: i for i, n in enumerate(classes)}
+        stage_mats = _stage_materials(self.looks_layer) if looks else {}
+        materials = [DEFAULT_MATERIAL]
+        mat_slot = {}                                  # material name -> index in ``materials``
+        p_class = np.array([cid[p.model.defect_type] for p in self.placements] or [0], np.int32)
+        p_mat = [defect_material(p.model.defect_type) for p in self.placements]
+
+        def slot(name: str) -> int:
+            if name not in stage_mats:
+                return 0
+            if name not in mat_slot:
+                mat_slot[name] = len(materials)
+                materials.append(render_material(stage_mats[name]))
+            return mat_slot[name]
+
+        verts, faces, fcls, finst, fmat, fuv, offset = [], [], [], [], [], [], 0
+        for v, f, label, placement, mat, road_st, defect_st in self._parts():
+            sel = keep(v, f) if keep is not None else np.ones(len(f), bool)
+            if not sel.any():
+                continue
+            f, placement = f[sel], placement[sel]
+            defect = placement >= 0
+            cls = np.where(defect, p_class[np.maximum(placement, 0)], cid[label]).astype(np.int32)
+            verts.append(v)
+            faces.append(f + offset)
+            offset += len(v)
+            fcls.append(cls)
+            finst.append((placement + 1).astype(np.int32))
+            if looks:
+                # decode only the materials in view (a 1024 px material is ~30 MB as float images)
+                used = np.unique(placement[defect])
+                lut = np.zeros(max(len(p_mat), 1), np.int32)
+                lut[used] = [slot(p_mat[i]) for i in used]
+                road_slot = slot(mat) if (~defect).any() else 0
+                fmat.append(np.where(defect, lut[np.maximum(placement, 0)], road_slot).astype(np.int32))
+                uv = np.asarray(road_st(v), np.float32)[f]
+                if defect.any():
+                    uv[defect] = np.asarray(defect_st(v), np.float32)[f[defect]]
+                fuv.append(uv)
+            else:
+                fmat.append(np.zeros(len(f), np.int32))
+        uv = np.concatenate(fuv) if looks else np.zeros((sum(map(len, faces)), 3, 2), np.float32)
+        return RenderMesh(np.concatenate(verts), np.concatenate(faces), np.concatenate(fcls), np.concatenate(finst),
+                          np.concatenate(fmat), uv, classes, materials, self._instances(classes),
+                          [c for c in classes if c in dtypes], str(self.layout.source))
+
+    def map_mesh(self):
+        """The whole town, labelled (no looks: the map colours by elevation and label)."""
+        return self._mesh()
+
+    def view_mesh(self, spot, range_m: float = VIEW_RANGE_M):
+        """The road within ``range_m`` of the camera (and not behind it), with the stage's looks."""
+        c, s = np.cos(spot.heading), np.sin(spot.heading)
+
+        def keep(v, f):
+            lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)     # whole segment out of range: skip
+            if (np.maximum(lo - spot.xy, 0) ** 2).sum() + (np.maximum(spot.xy - hi, 0) ** 2).sum() >= range_m ** 2:
+                return np.zeros(len(f), bool)
+            d = v[:, :2] - spot.xy
+            ok = (np.hypot(d[:, 0], d[:, 1]) < range_m) & (d[:, 0] * c + d[:, 1] * s > -VIEW_BEHIND_M)
+            return ok[f[:, 0]] | ok[f[:, 1]] | ok[f[:, 2]]
+
+        return self._mesh(keep, looks=True)
+
+
+def _stage_materials(looks_layer: Path | None) -> dict:
+    """Material name -> parsed ``TownMaterial`` of every ``UsdShade.Material`` in the looks layer."""
+    if looks_layer is None or not Path(looks_layer).exists():
+        return {}
+    from pxr import Usd, UsdShade
+
+    from .usd.looks_reader import parse_material
+
+    stage = Usd.Stage.Open(str(looks_layer))
+    out = {}
+    for prim in stage.Traverse():
+        if prim.IsA(UsdShade.Material):
+            out.setdefault(prim.GetName(), parse_material(UsdShade.Material(prim)))
+    return out
+
+
+__all__ = ["PreviewTown", "VIEW_RANGE_M"]

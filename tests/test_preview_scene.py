@@ -1,0 +1,76 @@
+"""The preview's in-memory town shows what the written stage shows: same triangles per label,
+same materials (parsed from the stage's looks layer) bound to the same area, same st.
+(USD stores points as float32: on 12 cm paint lines 100 m from the origin that is 1e-4 of the area.)"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from roadtwin_core.compose import compose
+from roadtwin_core.render import build_render_mesh
+from roadtwin_core.usd.town_reader import load_town
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def composed(tmp_path_factory):
+    import roadtwin_core.preview as preview
+
+    captured = {}
+    real = preview.write_preview
+
+    def spy(path, stage, **kw):
+        captured["town"] = kw.get("town")
+        return real(path, stage, **kw)
+
+    preview.write_preview = spy
+    try:
+        res = compose(REPO / "stages" / "town.usda", tmp_path_factory.mktemp("pv") / "out", defects=40, seed=3,
+                      executor="serial")
+    finally:
+        preview.write_preview = real
+    return res, captured["town"]
+
+
+def _per_material(mesh):
+    """material short name -> (area, mean st, area-weighted mean z, material) (face-order free)."""
+    tri = mesh.vertices[mesh.faces]
+    e1, e2 = tri[:, 1, :2] - tri[:, 0, :2], tri[:, 2, :2] - tri[:, 0, :2]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    out = {}
+    for k, m in enumerate(mesh.materials):
+        sel = mesh.face_material == k
+        if not sel.any():
+            continue
+        a = area[sel]
+        out[m.name.rsplit("/", 1)[-1]] = (a.sum(), mesh.face_uv[sel].astype(np.float64).mean(axis=(0, 1)),
+                                          (tri[sel, :, 2].mean(axis=1) * a).sum() / a.sum(), m)
+    return out
+
+
+def test_preview_town_matches_the_written_stage(composed):
+    res, town = composed
+    assert town is not None and (res.outdir / "preview.png").exists()
+    ref = build_render_mesh(load_town(res.town, looks=True))
+    behind_all = np.array([ref.vertices[:, 0].min() - 10.0, ref.vertices[:, 1].mean()])  # facing +x: all ahead
+    spot = type("Spot", (), {"xy": behind_all, "heading": 0.0})()
+    town.looks_layer = res.outdir / "layers" / "looks.usda"   # compose wrote it in a folder since renamed
+    ours = town.view_mesh(spot, range_m=1e6)            # everything, with looks
+    a, b = _per_material(ref), _per_material(ours)
+    assert sorted(a) == sorted(b)
+    for name in a:
+        np.testing.assert_allclose(a[name][0], b[name][0], rtol=1e-4, err_msg=name)
+        np.testing.assert_allclose(a[name][1], b[name][1], rtol=0, atol=1e-4, err_msg=name)
+        np.testing.assert_allclose(a[name][2], b[name][2], rtol=0, atol=1e-4, err_msg=name)
+        np.testing.assert_array_equal(a[name][3].diffuse, b[name][3].diffuse)
+        assert (a[name][3].normal is None) == (b[name][3].normal is None)
+    # labels: the map mesh has the stage's triangles per class and per defect instance
+    full = town.map_mesh()
+    assert len(full.faces) == len(ref.faces)
+    for cls in ref.classes:
+        assert (np.asarray(full.classes)[full.face_class] == cls).sum() == \
+            (np.asarray(ref.classes)[ref.face_class] == cls).sum(), cls
+    assert np.bincount(full.face_instance).tolist() == np.bincount(ref.face_instance).tolist()
