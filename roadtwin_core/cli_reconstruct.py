@@ -62,7 +62,7 @@ def reconstruct_defects(
         if p is not None and not p.exists():
             raise RoadtwinError(f"{p}: no such file")
     rec = get_plugin_manager().get("reconstructors", reconstructor)
-    if getattr(rec, "produces", None) != "defects":
+    if rec.produces != "defects":
         raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce defects")
     params = make_params(rec.Params, {"disparity_scale": disparity_scale, "grid_m": grid}, reconstructor)
     k = _floats(K, (4, 9), "--K")
@@ -141,7 +141,7 @@ def reconstruct_surface(
             raise RoadtwinError(f"--road-labels: label values are integers in 0..{2**32 - 1}, got {road_labels!r}")
         labels = [int(v) for v in values]
     rec = get_plugin_manager().get("reconstructors", reconstructor)
-    if getattr(rec, "produces", None) != "surface":
+    if rec.produces != "surface":
         raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce a surface")
     params = make_params(rec.Params, {"voxel_m": voxel, "radius_m": radius, "align": not no_align}, reconstructor)
     inputs = {"frames": list(frames), "poses": poses, "road_labels": labels}

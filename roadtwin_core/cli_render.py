@@ -308,7 +308,7 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     if events:
         if not lanes:
             raise RoadtwinError(f"{stage}: --events drives along a lane, but the stage has no driving lane centerlines")
-        prepared = rend.prepare(mesh, params) if hasattr(rend, "prepare") else mesh
+        prepared = rend.prepare(mesh, params)
         ev_times, ev_poses = lane_trajectory(lanes, np.random.default_rng([seed, 1]), ground_fn(), speed=speed,
                                              rate_hz=event_rate, n_frames=event_frames, height=height)
         ev_intr = Intrinsics.from_fov(ev_w, ev_h, hfov)
@@ -337,10 +337,9 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
         n_events = 0
         if ev_iter is not None:
             # a renderer that keeps frames on a GPU simulates the events there (same events)
-            on_device = getattr(rend, "render_events", None)
-            got = on_device(prepared, [Camera(ev_intr, p) for p in ev_poses], ev_times, params,
-                            progress=lambda k, n: report("events", k, n), threshold=event_threshold,
-                            seed=seed) if on_device else None
+            got = rend.render_events(prepared, [Camera(ev_intr, p) for p in ev_poses], ev_times, params,
+                                     progress=lambda k, n: report("events", k, n), threshold=event_threshold,
+                                     seed=seed)
             if got is None:
                 sim = EventSimulator(ev_w, ev_h, threshold=event_threshold, seed=seed)
                 ev_chunks = []

@@ -1,6 +1,7 @@
 """Plugin manager: built-ins and third-party plugins alike come from the ``roadtwin``
 entry-point group. A plugin that fails to import (or whose hook raises) is recorded by name and
-the rest keep working. ``ROADTWIN_PLUGINS=a,b`` limits loading to an allow-list.
+the rest keep working; so is a registered object that does not meet its kind's contract
+(:mod:`roadtwin_core.contracts`). ``ROADTWIN_PLUGINS=a,b`` limits loading to an allow-list.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from typing import Any
 
 import pluggy
 
-from . import hookspecs
+from . import contracts, hookspecs
 from .errors import RoadtwinError
 
 ENTRY_POINT_GROUP = "roadtwin"
@@ -85,6 +86,10 @@ class PluginManager:
                 name = getattr(thing, "name", None)
                 if not name:
                     _add_error(info, f"{kind}: registered an object without a name")
+                    continue
+                problems = contracts.check(kind, thing)
+                if problems:
+                    _add_error(info, f"{kind}: {name!r} does not meet the contract: {', '.join(problems)}")
                     continue
                 if name in things:
                     _add_error(info, f"{kind}: {name!r} already registered by plugin {owners[name]!r}")

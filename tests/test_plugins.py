@@ -18,10 +18,37 @@ from roadtwin_core.plugins import ALLOW_ENV, ENTRY_POINT_GROUP, KINDS, PluginMan
 
 
 # --------------------------------------------------------------------------- helpers
+@dataclasses.dataclass
+class NoParams:
+    pass
+
+
 class Thing:
+    """The least a registered thing of any kind needs: written from the contract's prose, one
+    method stub per kind (a thing of another kind carries harmless extra names)."""
+
+    Params = NoParams
+    params = NoParams()
+    produces = "surface"
+    suffix = ".x"
+
     def __init__(self, name: str, description: str = "") -> None:
         self.name = name
         self.description = description
+
+    def sample_params(self, rng): return NoParams()
+    def generate(self, params, rng, name): return None
+    def run(self, inputs, params): return None
+    def write(self, result, out): return out
+    def merge(self, segment, placements, surface, rules): return None
+    def load(self, *args): return None  # layout importers (path, params), surface sources (arg, bounds, seed)
+    def render(self, scene, cameras, params): return iter(())
+    def prepare(self, scene, params): return scene
+    def check_cameras(self, prepared, cameras, params): return None
+    def render_events(self, scene, cameras, times, params, progress=None, threshold=0.2, seed=0): return None
+    def simulate(self, road_mesh, vehicles, params): return None
+    def plan(self, grid, start, goal, vehicle, collision, params, rng): return None
+    def export(self, stage_path, out_path): return out_path
 
 
 def plugin_module(modname: str, **hooks) -> types.ModuleType:

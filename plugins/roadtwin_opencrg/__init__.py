@@ -27,6 +27,7 @@ class CrgSurfaceSource:
     """``--surface crg:PATH``: an OpenCRG road as the town's elevation source."""
 
     name = "crg"
+    description = "an OpenCRG road (.crg) as the town's elevation: --surface crg:ROAD.crg"
 
     def load(self, arg, bounds, seed):
         surface = CrgSurface.from_file(arg)

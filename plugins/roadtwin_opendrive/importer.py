@@ -269,7 +269,6 @@ class _Section:
 class OpenDriveImporter:
     name = "opendrive"
     description = "OpenDRIVE 1.4-1.8 road networks (.xodr): lanes as segments, junctions merged, road marks kept"
-    suffixes = (".xodr",)
     Params = OpenDriveParams
 
     def load(self, path: str | Path, params: OpenDriveParams | dict | None = None) -> TownLayout:

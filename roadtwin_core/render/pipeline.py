@@ -67,8 +67,7 @@ def _prepared(ctx: RenderContext):
     scene = _PREPARED.get(ctx.token)
     if scene is None:
         _PREPARED.clear()                  # one render at a time per process: drop the last one
-        prep = getattr(ctx.renderer, "prepare", None)
-        scene = prep(ctx.mesh, ctx.params) if prep else ctx.mesh
+        scene = ctx.renderer.prepare(ctx.mesh, ctx.params)
         _PREPARED[ctx.token] = scene
     return scene
 
