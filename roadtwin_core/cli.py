@@ -12,6 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from .errors import RoadtwinError
+from .params import PARAM_HELP
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="roadtwin: simulation-ready digital twins of roads with their defects, as OpenUSD.")
@@ -26,19 +27,51 @@ def _fail(message: str, code: int = 2) -> None:
 
 
 @app.command()
-def plugins() -> None:
-    """List every plugin, its version, what it registered and any load error."""
+def plugins(
+    params: Optional[str] = typer.Option(None, "--params", metavar="NAME",
+                                         help="print the parameters of every registered thing called NAME"),
+) -> None:
+    """List every plugin, its version, what it registered (with descriptions) and any load error."""
     from .plugins import get_plugin_manager
 
-    info = get_plugin_manager().load_all()
+    pm = get_plugin_manager()
+    info = pm.load_all()
+    if params is not None:
+        _print_params(pm, params)
+        return
     table = Table(title="roadtwin plugins")
     for col in ("plugin", "version", "registered", "error"):
         table.add_column(col)
     for name in sorted(info):
         i = info[name]
-        reg = "\n".join(f"{kind}: {', '.join(names)}" for kind, names in sorted(i.registered.items()))
+        reg = "\n".join(f"{kind}: {thing} - {pm.registry(kind)[thing].description}"
+                        for kind, names in sorted(i.registered.items()) for thing in names)
         table.add_row(name, i.version, reg or "-", f"[red]{i.error}[/]" if i.error else "")
     console.print(table)
+
+
+def _print_params(pm, name: str) -> None:
+    """``roadtwin plugins --params NAME``: each parameter, its type, default, bounds and doc."""
+    from .contracts import params_class
+    from .params import describe_params
+    from .plugins import KINDS
+
+    found = [(kind, pm.registry(kind)[name]) for kind in KINDS if name in pm.registry(kind)]
+    if not found:
+        known = sorted({n for kind in KINDS for n in pm.registry(kind)})
+        raise RoadtwinError(f"--params: no plugin registered anything called {name!r} (known: {', '.join(known) or 'none'})")
+    for kind, thing in found:
+        label = kind.replace("_", " ").rstrip("s")
+        rows = describe_params(params_class(kind, thing))
+        table = Table(title=f"{label} {name}: {thing.description}", title_justify="left")
+        for col in ("parameter", "type", "default", "bounds", "doc"):
+            table.add_column(col)
+        for r in rows:
+            lo, hi = r["lo"], r["hi"]
+            bounds = (f"{lo} .. {hi}" if lo is not None and hi is not None else f">= {lo}" if lo is not None
+                      else f"<= {hi}" if hi is not None else "")
+            table.add_row(r["name"], r["type"], repr(r["default"]), bounds, r["doc"])
+        console.print(table if rows else f"{label} {name}: no parameters", highlight=False)
 
 
 @app.command()
@@ -54,9 +87,11 @@ def compose(
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address (default: start a local one)"),
     workers: Optional[int] = typer.Option(None, "--workers", help="worker processes (default: all cores)"),
     library: Optional[Path] = typer.Option(None, "--library", help="folder of defect assets mixed with the parametric models"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"merger {PARAM_HELP}"),
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from .compose import compose as run_compose
+    from .params import parse_param_options
     from .usd.checks import output_path
 
     output_path(out, "dir")
@@ -74,7 +109,7 @@ def compose(
 
         result = run_compose(layout, out, defects=defects, seed=seed, merger=merger, surface=surface,
                              progress=report, preview=preview, executor=executor, ray_address=ray_address,
-                             workers=workers, library_dir=library)
+                             workers=workers, library_dir=library, merger_params=parse_param_options(param))
     s = result.summary
     table = Table(title=f"composed {result.town}")
     table.add_column("item")
@@ -132,23 +167,26 @@ def import_layout(
     importer: str = typer.Argument(..., help="layout importer plugin, e.g. opendrive"),
     source: Path = typer.Argument(..., help="input map file"),
     out: Path = typer.Option(..., "-o", "--out", help="layout file to write (.usda)"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"importer {PARAM_HELP}"),
 ) -> None:
     """Import a foreign road network (e.g. OpenDRIVE) as a roadtwin layout."""
     import os as _os
 
     from pxr import Sdf
 
+    from .params import cli_params
     from .plugins import get_plugin_manager
     from .usd.checks import output_path
     from .usd.layout_io import write_layout
 
     imp = get_plugin_manager().get("layout_importers", importer)
+    params = cli_params(param, imp.Params, f"layout importer {importer}")
     if not source.exists():
         raise RoadtwinError(f"{source}: no such file")
     if Sdf.FileFormat.FindByExtension(out.suffix.lstrip(".").lower() or "-") is None:
         raise RoadtwinError(f"{out}: a layout must be a USD file (.usda, .usd or .usdc)")
     output_path(out)
-    layout = imp.load(source, None)
+    layout = imp.load(source, params)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

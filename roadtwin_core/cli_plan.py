@@ -5,6 +5,7 @@ Registered in :mod:`roadtwin_core.cli` with ``app.command()(plan)``. Bad input r
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Iterable, Optional
@@ -14,6 +15,7 @@ from ._console import console, err_console
 from rich.table import Table
 
 from .errors import RoadtwinError
+from .params import PARAM_HELP, cli_params
 
 MAX_RESOLUTION_M = 2.0
 MAX_COORD_M = 1e7
@@ -52,6 +54,7 @@ def plan(
     seed: int = typer.Option(0, "--seed", help="random seed (sampling planners)"),
     sweep: Optional[Path] = typer.Option(None, "--sweep", help="roadtwin sweep output: decide bypass vs cross per defect on the route"),
     max_g: float = typer.Option(1.0, "--max-g", help="with --sweep: cross when g at the recommended speed is at most this"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"planner {PARAM_HELP} (one --planner)"),
 ) -> None:
     """Plan a path around road defects: grid maps of the stage, planner(s), metrics, plots, USD curve."""
     from .planning import PlanFailure, plan_stage
@@ -74,8 +77,14 @@ def plan(
         if text is not None and max(map(abs, parse_pose(text, what))) > MAX_COORD_M:
             raise RoadtwinError(f"{what} {text!r} is absurdly far (coordinates beyond {MAX_COORD_M:g} m)")
     names = None if all_planners else [planner or "hybrid_astar"]
+    from .plugins import get_plugin_manager
+
+    if param and names is None:
+        raise RoadtwinError("--param needs one --planner NAME (planners take different parameters)")
+    planner_params = dataclasses.asdict(cli_params(param, get_plugin_manager().get("planners", names[0]).Params,
+                                                   f"planner {names[0]}")) if param else None
     run = plan_stage(stage, out, planners=names, start=start, goal=goal, collision=collision,
-                     resolution=resolution, seed=seed, sweep=sweep, max_g=max_g)
+                     resolution=resolution, seed=seed, sweep=sweep, max_g=max_g, planner_params=planner_params)
     if not console.is_terminal:  # a log or a pipe: do not squeeze the table into 80 columns
         console.width = max(console.width, 130)
     s, g = run.start, run.goal

@@ -17,6 +17,7 @@ import typer
 from ._console import console
 
 from .errors import RoadtwinError
+from .params import PARAM_HELP, cli_params
 
 
 reconstruct_app = typer.Typer(help="Real sensor data -> road surface and defect models.", no_args_is_help=True)
@@ -48,6 +49,7 @@ def reconstruct_defects(
     out: Path = typer.Option(..., "-o", "--out", help="output folder (replaced atomically): one defect asset per "
                              "instance, mask.png, instances.json"),
     reconstructor: str = typer.Option("stereo_defects", "--reconstructor", help="reconstructor plugin"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
 ) -> None:
     """Stereo pair or disparity map -> defect library assets and mask.png."""
     from .params import make_params
@@ -65,6 +67,7 @@ def reconstruct_defects(
     if rec.produces != "defects":
         raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce defects")
     params = make_params(rec.Params, {"disparity_scale": disparity_scale, "grid_m": grid}, reconstructor)
+    params = cli_params(param, params, f"reconstructor {reconstructor}")
     k = _floats(K, (4, 9), "--K")
     inputs = {"disparity": disparity, "left": left, "right": right, "K": k, "baseline": baseline,
               "transformed": transformed}
@@ -95,6 +98,7 @@ def reconstruct_surface(
                                                   "camera-from-LiDAR transform (one for all frames)"),
     no_align: bool = typer.Option(False, "--no-align", help="keep the input Z (no RANSAC ground plane to Z-up)"),
     reconstructor: str = typer.Option("lidar_surface", "--reconstructor", help="reconstructor plugin"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
 ) -> None:
     """LiDAR frames + poses -> road surface library asset (coarse stream).
 
@@ -144,6 +148,7 @@ def reconstruct_surface(
     if rec.produces != "surface":
         raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce a surface")
     params = make_params(rec.Params, {"voxel_m": voxel, "radius_m": radius, "align": not no_align}, reconstructor)
+    params = cli_params(param, params, f"reconstructor {reconstructor}")
     inputs = {"frames": list(frames), "poses": poses, "road_labels": labels}
     if mask_files is not None:
         inputs.update(masks=mask_files, K=k, cam_from_lidar=cam_from_lidar)

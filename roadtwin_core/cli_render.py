@@ -42,7 +42,7 @@ from rich.table import Table
 
 from .atomic import atomic_output_dir
 from .errors import RoadtwinError
-from .params import check_params
+from .params import PARAM_HELP, check_params, cli_params
 
 Progress = Callable[[str, int, int], None]
 
@@ -122,7 +122,7 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
                event_threshold: float = 0.2, rig: str | None = None, views: str | None = None,
                randomize: bool = False, classmap: str | None = None, executor: str = "local",
                workers: int | None = None, ray_address: str | None = None, pm=None,
-               progress: Progress | None = None) -> dict:
+               progress: Progress | None = None, param: list[str] | None = None) -> dict:
     """Render a dataset; returns the summary (also the basis of meta.json)."""
     from .executors import make_executor
     from .plugins import get_plugin_manager
@@ -180,6 +180,7 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
         except ImportError:
             raise RoadtwinError("--events writes HDF5 and needs h5py (pip install h5py)") from None
     params = check_params(RenderParams(weather=weather, seed=seed, device=device, backend=backend), "render")
+    params = cli_params(param, params, f"renderer {renderer}")
 
     pm = pm or get_plugin_manager()
     rend = pm.get("renderers", renderer)
@@ -426,6 +427,7 @@ def render(
     event_frames: int = typer.Option(50, "--event-frames", help="frames rendered for the event camera"),
     event_size: Optional[str] = typer.Option(None, "--event-size", help="event camera size (default: --size)"),
     event_threshold: float = typer.Option(0.2, "--event-threshold", help="mean log-intensity contrast threshold"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"renderer {PARAM_HELP}"),
 ) -> None:
     """Render RGB, labels, depth, normals, stereo and events from a composed town."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress as Bar, TextColumn, TimeElapsedColumn
@@ -447,7 +449,7 @@ def render(
                              speed=speed, event_rate=event_rate, event_frames=event_frames, event_size=event_size,
                              event_threshold=event_threshold, rig=rig, views=views, randomize=randomize,
                              classmap=classmap, executor=executor, workers=workers, ray_address=ray_address,
-                             progress=report)
+                             progress=report, param=param)
     table = Table(title=f"rendered {Path(out).resolve()}")
     table.add_column("item")
     table.add_column("value", justify="right")

@@ -16,6 +16,7 @@ from ._console import console, err_console
 from rich.table import Table
 
 from .errors import RoadtwinError
+from .params import PARAM_HELP, cli_params
 
 _console, _err = console, err_console
 
@@ -50,6 +51,7 @@ def sweep(
     tire: str = typer.Option("3x7+2", "--tire", help="tire contact sampling SLICESxARC_RAYS[+BISECTION_ROUNDS]"),
     plots: bool = typer.Option(True, "--plots/--no-plots", help="write the PNG plots"),
     rerun: bool = typer.Option(False, "--rerun", help="also write a rerun recording (needs rerun-sdk)"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"physics backend {PARAM_HELP}"),
 ) -> None:
     """Drive vehicles over defects at several speeds; write g/aw per run, IMU traces, plots and a
     recommended speed per defect."""
@@ -71,6 +73,7 @@ def sweep(
     nl, na, refine = parse_tire(tire)
     sim = SimParams(dt_s=dt, imu_rate_hz=imu_rate, device=device, tire_slices=nl, tire_arc_samples=na,
                     tire_refine=refine).check("sweep")
+    sim = cli_params(param, sim, f"physics backend {backend}").check("sweep")
     engine = get_plugin_manager().get("physics_backends", backend)
     if seed < 0:
         raise RoadtwinError(f"sweep: seed must be >= 0, got {seed}")

@@ -7,7 +7,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -17,7 +17,8 @@ from .executors import make_executor
 from .looks import write_textures, write_textures_cached
 from .markings import build_markings
 from .model import ComposeRules, DefectModel, Placement, TownLayout
-from .params import make_params
+from .contracts import configured
+from .params import apply_params, make_params
 from .placement import lane_length_km, place_defects
 from .plugins import PluginManager, get_plugin_manager
 from .remesh import coarsen_defect
@@ -91,7 +92,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             merger: str | None = None, surface: str | None = None, progress: Progress | None = None,
             pm: PluginManager | None = None, preview: bool = True, executor: str = "local",
             ray_address: str | None = None, workers: int | None = None,
-            library_dir: str | Path | None = None) -> ComposeResult:
+            library_dir: str | Path | None = None, merger_params: dict[str, Any] | None = None) -> ComposeResult:
+    """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's."""
     t0 = time.perf_counter()
     layout_path = Path(layout_path)
     layout = read_layout(layout_path)
@@ -103,6 +105,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     layout.rules = rules
     pm = pm or get_plugin_manager()
     merger_impl = pm.get("mergers", rules.merger)
+    if merger_params:  # --param: a configured copy, the registered merger stays as it was
+        merger_impl = configured(merger_impl, apply_params(merger_impl.params, merger_params, f"merger {rules.merger}"))
     report = progress or (lambda *_: None)
 
     library = build_library(rules, pm) if rules.defect_count else {}

@@ -847,7 +847,8 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
                start: str | Sequence[float] | None = None, goal: str | Sequence[float] | None = None,
                collision: str = "wheel", resolution: float = 0.2, seed: int = 0,
                vehicle: Vehicle | None = None, pm=None, validate: bool = True,
-               sweep: str | Path | None = None, max_g: float = 1.0) -> PlanRun:
+               sweep: str | Path | None = None, max_g: float = 1.0,
+               planner_params: dict[str, Any] | None = None) -> PlanRun:
     """``roadtwin plan``: grid maps of a composed town (or a layout, composed first into
     ``OUTDIR/town``), one or more planners, and their outputs, written atomically to ``outdir``.
 
@@ -920,7 +921,7 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
             t0 = time.perf_counter()
             try:
                 r = plan_path(grid, impls[name], start, goal, vehicle=vehicle, collision=collision, seed=seed,
-                              reference_length=ref_len, pm=pm)
+                              reference_length=ref_len, pm=pm, params=planner_params)
             except RoadtwinError as exc:
                 if single:
                     raise

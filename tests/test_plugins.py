@@ -10,6 +10,8 @@ import importlib.metadata
 import math
 import types
 
+import numpy as np
+
 import pytest
 
 from roadtwin_core import RoadtwinError, field, hookimpl, make_params
@@ -293,3 +295,157 @@ def test_make_params_rejects_bad_values(values, words):
     assert msg.startswith("pothole:")
     for w in words:
         assert w in msg, msg
+
+
+# --------------------------------------------------------------------------- contracts
+from roadtwin_core import contracts  # noqa: E402
+
+
+def run_cli(monkeypatch, capsys, pm: PluginManager, *args: str) -> tuple[int, str, str]:
+    """``roadtwin ARGS`` in this process with ``pm`` as the shared plugin manager."""
+    import sys
+
+    from roadtwin_core import cli
+
+    monkeypatch.setattr(plugins_mod, "_manager", pm)
+    monkeypatch.setattr(sys, "argv", ["roadtwin", *args])
+    try:
+        cli.main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@dataclasses.dataclass
+class HeightParams:
+    voxel_m: float = field(0.05, lo=0.001)
+    radius_m: float = field(0.08, lo=0.001)
+    align: bool = True
+    lift_m: float = field(0.0, lo=-1.0, hi=1.0, doc="added to every height")
+
+
+class HeightmapReconstructor:
+    """Written from the documented contract only (contracts.Reconstructor), no base class."""
+
+    name = "heightmap"
+    description = "test: one flat triangle per frame"
+    produces = "surface"
+    Params = HeightParams
+
+    def __init__(self) -> None:
+        self.calls = []
+
+    def run(self, inputs, params):
+        self.calls.append((inputs, params))
+        z = params.lift_m
+        return types.SimpleNamespace(vertices=np.array([[0, 0, z], [2, 0, z], [0, 3, z]], float),
+                                     faces=np.array([[0, 1, 2]]))
+
+    def write(self, result, out):
+        out.write_text(f"{len(result.vertices)} {result.vertices[0, 2]}")
+        return out
+
+
+def contract_module(modname: str, **things) -> types.ModuleType:
+    mod = types.ModuleType(modname)
+    for kind, objs in things.items():
+        def impl(register, _objs=objs):
+            for o in _objs:
+                register(o)
+        impl.__name__ = f"roadtwin_register_{kind}"
+        setattr(mod, impl.__name__, hookimpl(impl))
+    return mod
+
+
+def test_reconstructor_written_to_the_contract_runs_through_the_cli(tmp_path, monkeypatch, capsys):
+    rec = HeightmapReconstructor()
+    assert contracts.check("reconstructors", rec) == []
+    pm = PluginManager(load_entry_points=False)
+    pm.register(contract_module("fake_heightmap", reconstructors=[rec]), name="heightmap_plugin")
+    frame = tmp_path / "f.npy"
+    np.save(frame, np.zeros((4, 3)))
+    out = tmp_path / "surface.usda"
+    code, stdout, err = run_cli(monkeypatch, capsys, pm, "reconstruct", "surface", str(frame), "-o", str(out),
+                                "--reconstructor", "heightmap", "--voxel", "0.1", "--param", "lift_m=0.25")
+    assert code == 0, err
+    (inputs, params), = rec.calls
+    assert inputs["frames"] == [frame]
+    assert (params.voxel_m, params.radius_m, params.lift_m) == (0.1, 0.08, 0.25)
+    assert out.read_text() == "3 0.25"
+    assert "3 vertices, 1 triangles, 2.00 x 3.00 m" in stdout
+
+
+def test_old_reconstruct_only_contract_is_reported_and_others_load(fake_eps):
+    class OldStyle:  # what hookspecs.py used to document: reconstruct(inputs, params) -> list
+        name, description, produces, Params = "old", "reconstruct() only", "defects", HeightParams
+
+        def reconstruct(self, inputs, params):
+            return []
+
+    fake_eps(FakeEntryPoint("oldie", contract_module("fake_old", reconstructors=[OldStyle()],
+                                                     exporters=[Thing("glb")])),
+             FakeEntryPoint("good", contract_module("fake_new", reconstructors=[HeightmapReconstructor()])))
+    pm = PluginManager()
+    assert list(pm.registry("reconstructors")) == ["heightmap"]
+    err = pm.load_all()["oldie"].error
+    assert err.startswith("reconstructors: 'old' does not meet the contract:")
+    assert "no method run()" in err and "no method write()" in err
+    assert list(pm.registry("exporters")) == ["glb"]  # the same plugin's conforming things still load
+    assert pm.info["good"].error == ""
+    with pytest.raises(RoadtwinError, match="unknown reconstructor 'old'"):
+        pm.get("reconstructors", "old")
+
+
+@pytest.mark.parametrize("kind,broken,words", [
+    ("planners", "plan", ["plan takes (grid, start, goal)", "collision, params, rng"]),
+    ("mergers", "Params", ["Params must be a dataclass"]),
+    ("reconstructors", "produces", ["produces must be one of surface, defects, got 'mesh'"]),
+    ("exporters", "suffix", ["suffix must be a string starting with '.'"]),
+    ("renderers", "prepare", ["no method prepare()", "RendererBase"]),
+    ("defect_types", "description", ["no attribute 'description'"]),
+])
+def test_each_kind_checks_its_contract(kind, broken, words):
+    thing = Thing("x", "d")
+    if broken == "plan":
+        thing.plan = lambda grid, start, goal: None
+    elif broken == "Params":
+        thing.Params = dict
+    elif broken == "produces":
+        thing.produces = "mesh"
+    elif broken == "suffix":
+        thing.suffix = "glb"
+    else:  # hide a class attribute or method behind a subclass that lacks it
+        cls = type("Broken", (), {k: v for k, v in vars(Thing).items() if k not in (broken, "__dict__")})
+        thing = cls("x", "d")
+        if broken == "description":
+            del thing.description
+    problems = "; ".join(contracts.check(kind, thing))
+    for w in words:
+        assert w in problems, problems
+    assert contracts.check(kind, Thing("x", "d")) == []
+
+
+def test_renderer_base_supplies_the_optional_capabilities():
+    class Minimal(contracts.RendererBase):
+        name, description, Params = "minimal", "render() only", NoParams
+
+        def render(self, scene, cameras, params):
+            yield from ()
+
+    r = Minimal()
+    assert contracts.check("renderers", r) == []
+    scene = object()
+    assert r.prepare(scene, None) is scene
+    assert r.check_cameras(scene, [], None) is None
+    assert r.render_events(scene, [], [], None, progress=None, threshold=0.2, seed=0) is None
+
+
+def test_builtin_plugins_meet_their_contracts(monkeypatch):
+    monkeypatch.delenv(ALLOW_ENV, raising=False)
+    pm = PluginManager()
+    for kind in KINDS:
+        for name, thing in pm.registry(kind).items():
+            assert contracts.check(kind, thing) == [], (kind, name)
+    assert not any("contract" in i.error for i in pm.info.values())
