@@ -18,6 +18,8 @@ from .errors import RoadtwinError
 from .geometry import polygon_loops, subdivide_edge
 from .model import RoadSegment
 
+__all__ = ["even_segment_mesh", "coarsen_defect"]
+
 
 def even_segment_mesh(segment: RoadSegment, edge_m: float, rims: list[tuple[np.ndarray, np.ndarray]] = ()
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

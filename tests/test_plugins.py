@@ -449,3 +449,89 @@ def test_builtin_plugins_meet_their_contracts(monkeypatch):
         for name, thing in pm.registry(kind).items():
             assert contracts.check(kind, thing) == [], (kind, name)
     assert not any("contract" in i.error for i in pm.info.values())
+
+
+# --------------------------------------------------------------------------- --param
+from roadtwin_core.params import apply_params, parse_param_options  # noqa: E402
+
+CURVED_XODR = __import__("pathlib").Path(__file__).parent / "data" / "opendrive" / "curved_road_default.xodr"
+
+
+def test_param_values_are_toml_scalars():
+    got = parse_param_options(["a=0.5", "b = true", 'c="x y"', "d=rain", "e=[1, 2]", "f=-3", "g=1e-3"])
+    assert got == {"a": 0.5, "b": True, "c": "x y", "d": "rain", "e": [1, 2], "f": -3, "g": 0.001}
+    assert type(got["f"]) is int
+    for bad, words in (("depth", "KEY=VALUE"), ("=1", "KEY=VALUE"), ("a b=1", "KEY=VALUE"), ("t={x=1}", "--param t")):
+        with pytest.raises(RoadtwinError, match=words):
+            parse_param_options([bad])
+    with pytest.raises(RoadtwinError, match="a: given twice"):
+        parse_param_options(["a=1", "a=2"])
+
+
+def test_param_values_are_typed_and_bounded_like_a_layouts():
+    p = apply_params(PotholeParams, {"depth_m": 0, "flat_bottom": True}, "pothole")
+    assert p.depth_m == 0.0 and type(p.depth_m) is float and p.flat_bottom is True
+    start = PotholeParams(radius_m=0.2)
+    assert apply_params(start, {"sides": 5}, "pothole") == PotholeParams(radius_m=0.2, sides=5)
+    assert start.sides == 12  # the instance given is not changed
+    for values, words in (({"depth_m": "deep"}, "parameter depth_m must be float, got 'deep'"),
+                          ({"sides": 2.5}, "parameter sides must be int"),
+                          ({"sides": True}, "parameter sides must be int"),
+                          ({"label": 3}, "parameter label must be str"),
+                          ({"depth_m": 0.9}, "parameter depth_m must be <= 0.5, got 0.9"),
+                          ({"depht_m": 1}, "unknown parameter(s) depht_m; known: depth_m, flat_bottom, label")):
+        with pytest.raises(RoadtwinError) as exc:
+            apply_params(PotholeParams, values, "pothole")
+        assert str(exc.value).startswith("pothole: ") and words in str(exc.value), str(exc.value)
+
+
+def test_import_param_reaches_the_importer(tmp_path, monkeypatch, capsys):
+    """`--param` changes what the importer does: pieces of at most 5 m along a 44.35 m road."""
+    import math
+
+    monkeypatch.delenv(ALLOW_ENV, raising=False)
+    out = tmp_path / "l.usda"
+    code, stdout, err = run_cli(monkeypatch, capsys, PluginManager(), "import", "opendrive", str(CURVED_XODR),
+                                "-o", str(out), "--param", "max_segment_length_m=5")
+    assert code == 0, err
+    assert f"{4 * math.ceil(44.347343 / 5.0)} segments" in stdout
+
+
+@pytest.mark.parametrize("param,words", [
+    ("nope=1", ["layout importer opendrive", "unknown parameter(s) nope", "max_segment_length_m"]),
+    ("sample_step_m=100", ["parameter sample_step_m must be <= 10.0, got 100.0"]),
+    ("sample_step_m=fine", ["parameter sample_step_m must be float, got 'fine'"]),
+    ("sample_step_m", ["expected KEY=VALUE"]),
+])
+def test_bad_param_is_one_line_exit_2(tmp_path, monkeypatch, capsys, param, words):
+    monkeypatch.delenv(ALLOW_ENV, raising=False)
+    out = tmp_path / "l.usda"
+    code, stdout, err = run_cli(monkeypatch, capsys, PluginManager(), "import", "opendrive", str(CURVED_XODR),
+                                "-o", str(out), "--param", param)
+    assert code == 2 and not out.exists()
+    assert len(err.strip().splitlines()) == 1, err
+    for w in words:
+        assert w in " ".join(err.split()), err
+
+
+def test_plugins_params_prints_fields_defaults_bounds_and_docs(monkeypatch, capsys):
+    pm = PluginManager(load_entry_points=False)
+
+    class Pothole(Thing):
+        Params = PotholeParams
+
+    pm.register(contract_module("fake_pp", defect_types=[Pothole("pothole", "a hole")],
+                                exporters=[Thing("pothole", "same name, another kind")]), name="pp")
+    monkeypatch.setenv("COLUMNS", "200")
+    code, out, err = run_cli(monkeypatch, capsys, pm, "plugins", "--params", "pothole")
+    assert code == 0, err
+    rows = {line.split("│")[1].strip(): [c.strip() for c in line.split("│")[2:-1]]
+            for line in out.splitlines() if line.startswith("│")}
+    assert rows["depth_m"] == ["float", "0.05", "0.0 .. 0.5", "depth below the surface"]
+    assert rows["radius_m"] == ["float", "0.3", ">= 0.01", ""]
+    assert rows["flat_bottom"] == ["bool", "False", "", ""]
+    assert "defect type pothole: a hole" in out and "exporter pothole: no parameters" in out
+    code, out, err = run_cli(monkeypatch, capsys, pm, "plugins")
+    assert code == 0 and "defect_types: pothole - a hole" in out
+    code, out, err = run_cli(monkeypatch, capsys, pm, "plugins", "--params", "crater")
+    assert code == 2 and "'crater'" in err and "known: pothole" in err
