@@ -1,11 +1,27 @@
 """roadtwin: road digital twins with defects, as OpenUSD.
 
-The public API is what this module exports; everything else is private to the framework.
+The public API, what plugins and users may import, is this module's ``__all__`` plus the
+``__all__`` of these public modules:
+
+- ``roadtwin_core.geometry``: mesh outlines, edges, vertical ray hits.
+- ``roadtwin_core.remesh``: the even road re-meshing every merger shares.
+- ``roadtwin_core.atomic``: write a whole output (folder or file) or nothing.
+- ``roadtwin_core.planning``: vehicle footprint, collision checker, reference paths and frames,
+  path metrics (what planners need).
+- ``roadtwin_core.vehicle``: the vehicle description, runs, traces, ride metrics.
+- ``roadtwin_core.render``: render scenes, cameras, frames and their parameters.
+- ``roadtwin_core.usd``: layouts, library assets and town stages in and out.
+
+What each kind of plugin object must provide is in :mod:`roadtwin_core.contracts` (its protocols
+are re-exported here). Every other module is private to the framework and may change without
+notice; ``tests/test_public_api.py`` checks that the plugins keep to this.
 """
+from .contracts import (DefectType, Exporter, LayoutImporter, Merger, PhysicsBackend, Planner, Reconstructor,
+                        Renderer, RendererBase, SurfaceSource)
 from .errors import RoadtwinError
 from .model import (MARKING_TYPES, ComposeRules, DefectModel, FixedDefect, LaneMarking, MergedSegment, Placement,
                     RoadSegment, TownLayout, polygon_area, triangle_areas)
-from .params import check_params, describe_params, field, make_params
+from .params import apply_params, check_params, describe_params, field, make_params
 from .plugins import PluginManager, get_plugin_manager, hookimpl, reset_plugin_manager
 from .surface import (FlatSurface, GridSurface, SampledSurface, SumSurface, SurfaceModel,
                       iso8608_surface, parse_surface)
@@ -17,5 +33,7 @@ __all__ = [
     "TownLayout", "polygon_area", "triangle_areas", "check_params", "describe_params", "field",
     "make_params", "PluginManager", "get_plugin_manager", "hookimpl", "reset_plugin_manager",
     "FlatSurface", "GridSurface", "SampledSurface", "SumSurface", "SurfaceModel",
-    "iso8608_surface", "parse_surface", "__version__",
+    "iso8608_surface", "parse_surface", "__version__", "apply_params",
+    "DefectType", "Reconstructor", "Merger", "LayoutImporter", "Renderer", "RendererBase", "PhysicsBackend",
+    "Planner", "Exporter", "SurfaceSource",
 ]

@@ -199,3 +199,24 @@ def test_graph_reads_relative_and_lazy_imports(tmp_path):
 def test_core_has_no_import_cycle():
     cycle = find_cycle(import_graph())
     assert cycle is None, "import cycle in roadtwin_core: " + " -> ".join(cycle)
+
+
+def _absolute_imports(path: Path) -> set[str]:
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.add(node.module.split(".")[0])
+        elif isinstance(node, ast.Import):
+            out |= {a.name.split(".")[0] for a in node.names}
+    return out
+
+
+def test_core_imports_no_plugin_and_no_plugin_imports_another():
+    plugins = {p.name for p in (REPO / "plugins").iterdir() if (p / "__init__.py").exists()}
+    assert {"roadtwin_defects", "roadtwin_cdt"} <= plugins
+    for path in CORE.rglob("*.py"):
+        assert not _absolute_imports(path) & plugins, f"{path.relative_to(REPO)} imports a plugin"
+    for path in (REPO / "plugins").rglob("*.py"):
+        own = path.relative_to(REPO / "plugins").parts[0]
+        others = _absolute_imports(path) & (plugins - {own})
+        assert not others, f"{path.relative_to(REPO)} imports another plugin: {sorted(others)}"
