@@ -99,8 +99,9 @@ class Renderer(Protocol):
     description: str
     Params: type
 
-    def render(self, scene, cameras, params) -> Iterator[Any]:
-        """Yield one Frame per camera, in order."""
+    def render(self, scene, cameras, params, *, look=None) -> Iterator[Any]:
+        """Yield one Frame per camera, in order. ``look``: the frame's randomized scene look
+        (``roadtwin render --randomize``), None for the stage's own materials."""
 
     def prepare(self, scene, params) -> Any:
         """Build acceleration structures once; the result is what ``render`` gets as ``scene``."""
@@ -204,8 +205,8 @@ def _callable_like(method, spec: inspect.Signature) -> str:
     try:
         sig.bind(*positional, **keywords)
     except TypeError:
-        shown = ", ".join(str(p) for p in wanted)
-        return f"takes {sig}, the contract calls it with ({shown})"
+        shown = spec.replace(parameters=wanted, return_annotation=inspect.Signature.empty)
+        return f"takes {sig.replace(return_annotation=inspect.Signature.empty)}, the contract calls it as {shown}"
     return ""
 
 

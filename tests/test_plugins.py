@@ -44,7 +44,7 @@ class Thing:
     def write(self, result, out): return out
     def merge(self, segment, placements, surface, rules): return None
     def load(self, *args): return None  # layout importers (path, params), surface sources (arg, bounds, seed)
-    def render(self, scene, cameras, params): return iter(())
+    def render(self, scene, cameras, params, look=None): return iter(())
     def prepare(self, scene, params): return scene
     def check_cameras(self, prepared, cameras, params): return None
     def render_events(self, scene, cameras, times, params, progress=None, threshold=0.2, seed=0): return None
@@ -404,12 +404,15 @@ def test_old_reconstruct_only_contract_is_reported_and_others_load(fake_eps):
     ("reconstructors", "produces", ["produces must be one of surface, defects, got 'mesh'"]),
     ("exporters", "suffix", ["suffix must be a string starting with '.'"]),
     ("renderers", "prepare", ["no method prepare()", "RendererBase"]),
+    ("renderers", "render", ["render takes (scene, cameras, params), the contract calls it as (scene, cameras, params, *, look=None)"]),
     ("defect_types", "description", ["no attribute 'description'"]),
 ])
 def test_each_kind_checks_its_contract(kind, broken, words):
     thing = Thing("x", "d")
     if broken == "plan":
         thing.plan = lambda grid, start, goal: None
+    elif broken == "render":  # the core passes look= under --randomize
+        thing.render = lambda scene, cameras, params: iter(())
     elif broken == "Params":
         thing.Params = dict
     elif broken == "produces":
@@ -431,7 +434,7 @@ def test_renderer_base_supplies_the_optional_capabilities():
     class Minimal(contracts.RendererBase):
         name, description, Params = "minimal", "render() only", NoParams
 
-        def render(self, scene, cameras, params):
+        def render(self, scene, cameras, params, *, look=None):
             yield from ()
 
     r = Minimal()
@@ -535,3 +538,34 @@ def test_plugins_params_prints_fields_defaults_bounds_and_docs(monkeypatch, caps
     assert code == 0 and "defect_types: pothole - a hole" in out
     code, out, err = run_cli(monkeypatch, capsys, pm, "plugins", "--params", "crater")
     assert code == 2 and "'crater'" in err and "known: pothole" in err
+
+
+def test_compose_merger_param_reaches_a_copy_of_the_merger(tmp_path):
+    """`compose --param` configures the merger used for this town only; the registered one keeps
+    its defaults (plugins are shared objects)."""
+    from pathlib import Path
+
+    from roadtwin_cdt import CDTMerger
+
+    from roadtwin_core.compose import compose
+
+    seen = []
+
+    class SpyMerger(CDTMerger):
+        name = "spy"
+
+        def merge(self, segment, placements, surface, rules):
+            seen.append(self.params)
+            return super().merge(segment, placements, surface, rules)
+
+    registered = SpyMerger()
+    pm = PluginManager(load_entry_points=False)
+    pm.register(contract_module("fake_spy", mergers=[registered]), name="spy_plugin")
+    layout = Path(__file__).resolve().parents[1] / "stages" / "town.usda"
+    compose(layout, tmp_path / "town", defects=0, seed=1, merger="spy", preview=False, executor="serial",
+            pm=pm, merger_params={"min_angle_deg": 25})
+    assert seen and {p.min_angle_deg for p in seen} == {25.0}
+    assert registered.params.min_angle_deg == CDTMerger().params.min_angle_deg != 25.0
+    with pytest.raises(RoadtwinError, match="merger spy: parameter min_angle_deg must be <= 30.0"):
+        compose(layout, tmp_path / "town2", defects=0, merger="spy", preview=False, executor="serial", pm=pm,
+                merger_params={"min_angle_deg": 31})
