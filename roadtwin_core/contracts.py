@@ -46,6 +46,8 @@ class Reconstructor(Protocol):
 
     ``produces`` is ``"surface"`` (``roadtwin reconstruct surface``) or ``"defects"``
     (``roadtwin reconstruct defects``); ``inputs`` is the dict the command builds from its options.
+    The command also sets these ``Params`` fields from its options, so the dataclass declares
+    them: ``voxel_m``, ``radius_m``, ``align`` (surface); ``disparity_scale``, ``grid_m`` (defects).
     """
 
     name: str
