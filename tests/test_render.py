@@ -23,9 +23,11 @@ import roadtwin_core.plugins as plugins_mod
 import roadtwin_defects
 import roadtwin_warp_render
 from roadtwin_core import PluginManager, RoadtwinError
-from roadtwin_core.cli_render import parse_size, render, run_render
+from roadtwin_core.apps.render import parse_size, run_render
+from roadtwin_core.apps.render.writers import rle_decode, rle_encode
+from roadtwin_core.cli_render import render
 from roadtwin_core.render import (Camera, EventSimulator, Intrinsics, RenderParams, StereoCamera, build_render_mesh,
-                                  look_from, rle_decode, rle_encode)
+                                  look_from)
 from roadtwin_core.usd.town_reader import TownDefect, TownMesh, TownScene
 
 ROOT = Path(__file__).resolve().parents[1]
