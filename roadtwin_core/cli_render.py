@@ -6,25 +6,8 @@ command does is ``roadtwin_core.apps.render``).
     roadtwin render out/highway/town.usda --rig survey --views defects:0.6 --randomize \\
         --classmap builtin:road_defects_br --frames 2000 --executor local -o out/survey
 
-Appearance is the stage's: the UsdPreviewSurface materials and textures bound to its meshes
-(``--material`` only picks a variant of the root's ``roadMaterial`` variant set, in memory).
-Cameras, first that applies: a ``--poses`` JSON file; ``--views defects:SHARE[:clear]`` (the
-view sampler: that share of frames aimed at a pothole or crack 5-25 m ahead, the rest along the
-lanes) or ``--views random`` (random lane poses, ``--height`` m above the road, yaw / pitch / roll
-jitter); the stage's ``UsdGeom.Camera`` prims (``roadtwin rig add``); random lane poses.
-``--rig`` sets size, field of view, height, pitch and stereo baseline from a preset
-(``cameras.RIG_PRESETS``); explicit ``--size/--hfov/--height/--pitch/--baseline`` override it.
-``--randomize`` draws per frame (``randomize.draw(seed, i)``) the sun, sky, weather, road tint and
-wear, verge and shoulder surfaces (applied by the renderer, ``scene_look``) and a camera model
-(``apply_sensor``: blur, vignetting, exposure, noise, white balance, JPEG; images are the JPEG
-bytes); labels are untouched. ``--classmap`` maps the labels to a dataset's classes with the
-frame's ego lane (``ego_lane``) and grows thin classes (``[dilate_px]``). Frames are rendered in
-chunks on ``--executor`` (local pool, serial, Ray); frame i depends only on (seed, i), so every
-executor writes the same bytes. ``--events`` adds a continuous drive along one lane (``--speed``
-m/s, ``--event-rate`` Hz, ``--event-frames`` frames) fed to the event camera simulator.
-Everything is checked before the output directory is touched (size, formats, weather, renderer,
-stage, poses, rig, views, class map) and the directory is written whole or not at all.
-The renderer is a plugin, found by name (``--renderer``, default ``warp``).
+How cameras, appearance, randomization, class maps and executors are chosen: see
+``roadtwin_core.apps.render.run``.
 """
 from __future__ import annotations
 
