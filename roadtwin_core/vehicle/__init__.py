@@ -5,7 +5,8 @@ vibration sweeps (the paper's speed-control study). Backends are plugins
 from .metrics import (ALPHA, comfort_band, comfort_bands_containing, vibration_degree, window_metrics, wk_digital,
                       wk_magnitude, wk_weight)
 from .roads import (REFERENCE_DEFECTS, Crossing, RoadMesh, Scenario, ReferenceDefect, fill_defects, grid_mesh,
-                    load_town_scenario, offset_polyline, step_road, straight_road, straight_road_scenario, town_scenario)
+                    load_town_scenario, offset_polyline, resample_path,
+                    resampled_path_at, step_road, straight_road, straight_road_scenario, town_scenario)
 from .sweep import (RunSpec, SweepConfig, build_matrix, compute_rows, parse_offsets, parse_speeds, recommend,
                     run_sweep, write_outputs)
 from .vehicle import (DEFAULT_CAR, GRAVITY, QuarterCarParams, SimParams, Traces, VehicleParams, VehicleRun,
@@ -15,7 +16,8 @@ from .vehicle import (DEFAULT_CAR, GRAVITY, QuarterCarParams, SimParams, Traces,
 __all__ = [
     "ALPHA", "comfort_band", "comfort_bands_containing", "vibration_degree", "window_metrics", "wk_digital",
     "wk_magnitude", "wk_weight", "REFERENCE_DEFECTS", "Crossing", "RoadMesh", "Scenario", "ReferenceDefect",
-    "fill_defects", "grid_mesh", "load_town_scenario", "offset_polyline", "step_road", "straight_road",
+    "fill_defects", "grid_mesh", "load_town_scenario", "offset_polyline", "resample_path", "resampled_path_at",
+    "step_road", "straight_road",
     "straight_road_scenario", "town_scenario", "RunSpec", "SweepConfig", "build_matrix", "compute_rows",
     "parse_offsets", "parse_speeds", "recommend", "run_sweep", "write_outputs", "DEFAULT_CAR", "GRAVITY",
     "QuarterCarParams", "SimParams", "Traces", "VehicleParams", "VehicleRun", "check_runs", "default_vehicle",
