@@ -418,6 +418,17 @@ def solve_accelerations(A: wp.mat33, Qb: wp.vec3, Qs: wp.vec4, cpl0: wp.vec3, cp
 
 
 @wp.func
+def count_lost(st: State, cfg: Config, i: int, lost: bool):
+    """Consecutive steps with a wheel off the road; too many end the vehicle's run."""
+    if lost:
+        st.lost[i] = st.lost[i] + 1
+        if st.lost[i] > cfg.lost_limit:
+            st.dead[i] = 1
+    else:
+        st.lost[i] = 0
+
+
+@wp.func
 def sense(fl: Fleet, st: State, cfg: Config, out: Output, i: int, any_lost: int, tire_tot: wp.vec4):
     """After a step: the IMU (delta-velocity of its point, body frame), the lost-wheel count,
     and at the end of an IMU interval one output sample."""
@@ -440,12 +451,7 @@ def sense(fl: Fleet, st: State, cfg: Config, out: Output, i: int, any_lost: int,
     st.vimu[i] = vimu
     st.acc_sum[i] = st.acc_sum[i] + wp.transpose(R2) * acc
     st.gyro_sum[i] = st.gyro_sum[i] + omega2
-    if any_lost != 0:
-        st.lost[i] = st.lost[i] + 1
-        if st.lost[i] > cfg.lost_limit:
-            st.dead[i] = 1
-    else:
-        st.lost[i] = 0
+    count_lost(st, cfg, i, any_lost != 0)
     if step % cfg.imu_every == 0:
         k = step / cfg.imu_every - 1
         n = float(cfg.imu_every)
@@ -672,12 +678,7 @@ def quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Outp
         vz = wp.vec3(0.0, 0.0, qd[0])
         st.acc_sum[i] = st.acc_sum[i] + (vz - st.vimu[i]) / dt + wp.vec3(0.0, 0.0, GRAV)
         st.vimu[i] = vz
-        if ft <= 0.0:
-            st.lost[i] = st.lost[i] + 1
-            if st.lost[i] > cfg.lost_limit:
-                st.dead[i] = 1
-        else:
-            st.lost[i] = 0
+        count_lost(st, cfg, i, ft <= 0.0)
         if step % cfg.imu_every == 0:
             k = step / cfg.imu_every - 1
             out.acc[i, k] = st.acc_sum[i] / float(cfg.imu_every)
