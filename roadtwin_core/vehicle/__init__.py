@@ -5,7 +5,8 @@
 from .metrics import (ALPHA, comfort_band, comfort_bands_containing, vibration_degree, window_metrics, wk_digital,
                       wk_magnitude, wk_weight)
 from .roads import (REFERENCE_DEFECTS, Crossing, RoadMesh, Scenario, ReferenceDefect, fill_defects, grid_mesh,
-                    load_town_scenario, offset_polyline, step_road, straight_road, straight_road_scenario, town_scenario)
+                    load_town_scenario, offset_polyline, resample_path,
+                    resampled_path_at, step_road, straight_road, straight_road_scenario, town_scenario)
 from .vehicle import (DEFAULT_CAR, GRAVITY, QuarterCarParams, SimParams, Traces, VehicleParams, VehicleRun,
                       check_runs, default_vehicle, describe_vehicle_params, load_vehicle, plain_vehicles,
                       vehicle_from_dict, vehicle_to_toml)
@@ -13,8 +14,8 @@ from .vehicle import (DEFAULT_CAR, GRAVITY, QuarterCarParams, SimParams, Traces,
 __all__ = [
     "ALPHA", "comfort_band", "comfort_bands_containing", "vibration_degree", "window_metrics", "wk_digital",
     "wk_magnitude", "wk_weight", "REFERENCE_DEFECTS", "Crossing", "RoadMesh", "Scenario", "ReferenceDefect",
-    "fill_defects", "grid_mesh", "load_town_scenario", "offset_polyline", "step_road", "straight_road",
-    "straight_road_scenario", "town_scenario", "DEFAULT_CAR", "GRAVITY",
+    "fill_defects", "grid_mesh", "load_town_scenario", "offset_polyline", "resample_path", "resampled_path_at",
+    "step_road", "straight_road", "straight_road_scenario", "town_scenario", "DEFAULT_CAR", "GRAVITY",
     "QuarterCarParams", "SimParams", "Traces", "VehicleParams", "VehicleRun", "check_runs", "default_vehicle",
     "describe_vehicle_params", "load_vehicle", "plain_vehicles", "vehicle_from_dict", "vehicle_to_toml",
 ]
