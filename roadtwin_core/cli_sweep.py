@@ -56,7 +56,7 @@ def sweep(
     from .atomic import atomic_output_dir
     from .usd.checks import output_path
     from .plugins import get_plugin_manager
-    from .vehicle import (QuarterCarParams, SimParams, SweepConfig, VehicleParams, load_vehicle, parse_offsets,
+    from .vehicle import (SimParams, SweepConfig, VehicleParams, load_full_vehicle, parse_offsets,
                           parse_speeds, run_sweep)
     from .vehicle.roads import load_town_scenario, straight_road_scenario
 
@@ -65,9 +65,7 @@ def sweep(
         raise RoadtwinError("sweep: give either a STAGE or --surface iso8608:CLASS (not both, not neither)")
     speed_list = parse_speeds(speeds)
     offset_list = parse_offsets(offsets)
-    params = load_vehicle(vehicle) if vehicle is not None else VehicleParams()
-    if isinstance(params, QuarterCarParams):
-        raise RoadtwinError(f"vehicle file {vehicle}: sweeps need a full vehicle (model = \"full\")")
+    params = load_full_vehicle(vehicle, VehicleParams())
     nl, na, refine = parse_tire(tire)
     sim = SimParams(dt_s=dt, imu_rate_hz=imu_rate, device=device, tire_slices=nl, tire_arc_samples=na,
                     tire_refine=refine).check("sweep")
