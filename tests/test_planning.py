@@ -438,3 +438,25 @@ def test_footprint_is_the_physics_vehicle():
     assert fp.tire_width_m == car.tire_width_m and fp.tire_length_m == car.tire_contact_length_m
     x0, x1, _, _ = fp.body_rect()
     assert (x0, x1) == pytest.approx((-1.0, 4.2))
+
+
+def test_plan_sweep_needs_the_sweep_of_the_planned_car(town, tmp_path):
+    """`plan --vehicle FILE --sweep DIR`: the car planned for is the car whose vibration decides.
+    A sweep of the paper car cannot decide for the default sedan; the sedan's own sweep can, and
+    the path is then planned with the sedan's footprint (1.55 m track, not the paper car's 2.0 m)."""
+    from roadtwin_core.vehicle import DEFAULT_CAR
+    from roadtwin_core.vehicle.sweep import dataclass_dict
+
+    sedan = ROOT / "roadtwin_core" / "vehicle" / "default_car.toml"
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "recommendations.json").write_text("[]")
+    (sweep / "summary.json").write_text(json.dumps({"vehicles": {"paper_car": dataclass_dict(paper_car())}}))
+    result = run_cli(town, "-p", "astar", "--vehicle", sedan, "--sweep", sweep, "-o", tmp_path / "out")
+    assert isinstance(result.exception, RoadtwinError), result.output
+    assert "not the car being planned for, default_car (track 1.55 m" in str(result.exception)
+    (sweep / "summary.json").write_text(json.dumps({"vehicles": {"default_car": dataclass_dict(DEFAULT_CAR)}}))
+    result = run_cli(town, "-p", "astar", "--vehicle", sedan, "--sweep", sweep, "-o", tmp_path / "out")
+    assert result.exit_code == 0, (result.output, result.exception)
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["vehicle"]["track_m"] == 1.55 and metrics["vehicle"]["wheelbase_m"] == 2.7
