@@ -179,7 +179,8 @@ class RRTStar:
                 k = int(np.argmax(ok))
                 final = chains[k].copy()
                 final[-1] = goal
-                return PlannerOutput(self._path(int(batch[k]), final, xy, yaw, parent, start, edge), {"tree_size": n})
+                path = self._path(int(batch[k]), final, xy, yaw, parent, start, edge)
+                return PlannerOutput(path, {"tree_size": n})
         return PlannerOutput(None, {"tree_size": n})
 
     @staticmethod

@@ -20,7 +20,8 @@ class CollisionChecker:
         if collision not in COLLISION_MODES:
             raise RoadtwinError(f"unknown collision level {collision!r} (known: {', '.join(COLLISION_MODES)})")
         if not isinstance(footprint, Footprint):
-            raise RoadtwinError(f"collision checks need a planning Footprint (VehicleParams.footprint()), got {type(footprint).__name__}")
+            raise RoadtwinError("collision checks need a planning Footprint (VehicleParams.footprint()), "
+                                f"got {type(footprint).__name__}")
         self.grid, self.footprint, self.collision = grid, footprint, collision
         res = grid.resolution
         self.step = res / 2

@@ -155,7 +155,7 @@ class VehicleParams:
         Planning's wheel-level check puts each axle's wheels ``track/2`` either side of the
         centreline with one track, so a car whose front and rear tracks differ is refused
         rather than planned with the wrong wheel lines."""
-        from ..planning.footprint import Footprint
+        from ..planning import Footprint
 
         if abs(self.track_front_m - self.track_rear_m) > 1e-9:
             raise RoadtwinError(f"vehicle {self.name}: planning needs track_front_m == track_rear_m "
