@@ -49,16 +49,14 @@ def sweep(
     from .atomic import atomic_output_dir
     from .plugins import get_plugin_manager
     from .usd.checks import output_path
-    from .vehicle import QuarterCarParams, VehicleParams, load_vehicle
+    from .vehicle import VehicleParams, load_full_vehicle
 
     output_path(out, "dir")
     if (stage is None) == (surface is None):
         raise RoadtwinError("sweep: give either a STAGE or --surface iso8608:CLASS (not both, not neither)")
     speed_list = parse_speeds(speeds)
     offset_list = parse_offsets(offsets)
-    params = load_vehicle(vehicle) if vehicle is not None else VehicleParams()
-    if isinstance(params, QuarterCarParams):
-        raise RoadtwinError(f"vehicle file {vehicle}: sweeps need a full vehicle (model = \"full\")")
+    params = load_full_vehicle(vehicle, VehicleParams())
     sim = sim_params(dt, imu_rate, device, tire)
     engine = get_plugin_manager().get("physics_backends", backend)
     scenario = load_scenario(stage, surface, length, seed, defects)
