@@ -27,9 +27,7 @@ reads it back.
 """
 from __future__ import annotations
 
-import os
 import re
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -202,11 +200,11 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
 
     from roadtwin_core.usd.stage import apply_labels, new_stage, set_attrs, set_kind, write_mesh
 
+    from roadtwin_core.atomic import atomic_files
+
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}{path.suffix}")
     name = _safe_name(surface.name)
-    try:
+    with atomic_files(path) as (tmp,):
         stage = new_stage(tmp, name, f"roadtwin surface asset: {name}")
         root = UsdGeom.Xform.Define(stage, f"/{name}").GetPrim()
         set_kind(root, "component")
@@ -224,10 +222,6 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
         UsdGeom.ModelAPI(root).SetExtentsHint(Vt.Vec3fArray([tuple(lo.tolist()), tuple(hi.tolist())]))
         stage.GetRootLayer().Save()
         del stage
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 
