@@ -27,7 +27,6 @@ reads it back.
 """
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -121,8 +120,9 @@ def _apply_masks(frames, names, masks, K, cam_from_lidar, who: str):
 
 
 def _safe_name(stem: str) -> str:
-    s = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "surface"
-    return s if s[0].isalpha() else f"s{s}"
+    from roadtwin_core.usd import safe_prim_name  # pxr only when a name is needed
+
+    return safe_prim_name(stem, empty="surface", lead="s")
 
 
 class LidarSurfaceReconstructor:

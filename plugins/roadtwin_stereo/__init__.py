@@ -21,7 +21,6 @@ out, since a transformed, normalised map has lost the disparity units needed for
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -113,8 +112,9 @@ def _K(k: Any) -> np.ndarray:
 
 
 def _safe_name(stem: str) -> str:
-    s = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "frame"
-    return s if s[0].isalpha() else f"f{s}"
+    from roadtwin_core.usd import safe_prim_name  # pxr only when a name is needed
+
+    return safe_prim_name(stem, empty="frame", lead="f")
 
 
 class StereoDefects:
