@@ -96,15 +96,17 @@ def _file_tmp(target: Path) -> Path:
 
 
 @contextlib.contextmanager
-def atomic_files(*targets: str | Path) -> Iterator[list[Path]]:
+def atomic_files(*targets: str | Path, parents: bool = True) -> Iterator[list[Path]]:
     """Yield one temporary path per target, in the target's folder and with its suffix. On
     success each temporary replaces its target, in the order given (so a companion file such as
     an OBJ's ``.mtl`` is in place before the file that names it); on any error every temporary
-    is removed and the targets are untouched. Crash litter of earlier runs is removed first."""
+    is removed and the targets are untouched. Crash litter of earlier runs is removed first.
+    ``parents=False``: a missing folder is an error instead of being created."""
     targets = tuple(Path(t) for t in targets)
     tmps = []
     for target in targets:
-        make_parent(target)
+        if parents:
+            make_parent(target)
         if target.is_dir():
             raise RoadtwinError(f"{target}: is a directory")
         remove_stale(target)
@@ -121,10 +123,10 @@ def atomic_files(*targets: str | Path) -> Iterator[list[Path]]:
         raise
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+def atomic_write_bytes(path: str | Path, data: bytes, parents: bool = True) -> Path:
     """Write ``data`` to ``path`` atomically (see :func:`atomic_files`)."""
     path = Path(path)
-    with atomic_files(path) as (tmp,):
+    with atomic_files(path, parents=parents) as (tmp,):
         tmp.write_bytes(data)
     return path
 

@@ -119,12 +119,6 @@ def _apply_masks(frames, names, masks, K, cam_from_lidar, who: str):
     return out
 
 
-def _safe_name(stem: str) -> str:
-    from roadtwin_core.usd import safe_prim_name  # pxr only when a name is needed
-
-    return safe_prim_name(stem, empty="surface", lead="s")
-
-
 class LidarSurfaceReconstructor:
     name = "lidar_surface"
     description = "LiDAR frames + poses -> road surface mesh (RANSAC ground plane, trimmed Delaunay, robust elevation)"
@@ -178,7 +172,10 @@ class LidarSurfaceReconstructor:
         except RuntimeError as exc:  # open3d refuses extents its voxel grid cannot index
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise RoadtwinError(f"{source}: cannot build the surface ({first})") from None
-        stem = _safe_name(Path(names[0]).stem) if not isinstance(frames_in[0], np.ndarray) else "lidar"
+        from roadtwin_core.usd import safe_prim_name
+
+        stem = "lidar" if isinstance(frames_in[0], np.ndarray) else safe_prim_name(Path(names[0]).stem, empty="surface",
+                                                                                   lead="s")
         return LidarSurface(f"{stem}_surface", verts, faces, T, source,
                             {"reconstructor": self.name, "frames": len(frames), "points": int(len(pts)),
                              "voxel_m": p.voxel_m, "radius_m": p.radius_m})
@@ -198,12 +195,12 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
 
     from pxr import Gf, Sdf, UsdGeom, Vt
 
+    from roadtwin_core.atomic import atomic_files
+    from roadtwin_core.usd import safe_prim_name
     from roadtwin_core.usd.stage import apply_labels, new_stage, set_attrs, set_kind, write_mesh
 
-    from roadtwin_core.atomic import atomic_files
-
     path = Path(path)
-    name = _safe_name(surface.name)
+    name = safe_prim_name(surface.name, empty="surface", lead="s")
     with atomic_files(path) as (tmp,):
         stage = new_stage(tmp, name, f"roadtwin surface asset: {name}")
         root = UsdGeom.Xform.Define(stage, f"/{name}").GetPrim()

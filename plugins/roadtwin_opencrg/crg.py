@@ -719,7 +719,7 @@ def write_crg(path: str | Path, crg: CRG, binary: bool = False, double: bool | N
     shipped files do); longer ones fall back to the most digits that fit (about 15 significant
     in LDFI), so text is exact for values with a short decimal form, binary KDBI always.
     """
-    return atomic_write_bytes(path, crg_bytes(crg, binary, double))
+    return atomic_write_bytes(path, crg_bytes(crg, binary, double), parents=False)   # as before: no folders made
 
 
 # ----------------------------------------------------------------------------------------- surface
