@@ -26,10 +26,6 @@ file says ``extends = "default"``, in which case missing ones come from :data:`D
 Unknown keys, missing keys, NaN, non-positive masses/stiffnesses/lengths, impossible inertias or
 geometry, and a car that would sit on its bump stops raise :class:`RoadtwinError` with one line
 naming the file and the parameter.
-
-This module uses only the standard library and numpy (and roadtwin's error type when it is
-imported as part of the package), so ``bench/sweep.py`` can load it by file path on a machine
-without roadtwin installed.
 """
 from __future__ import annotations
 
@@ -40,11 +36,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-try:  # part of the roadtwin_core package
-    from ..errors import RoadtwinError
-except ImportError:  # loaded by file path (bench on a machine with only numpy + warp)
-    class RoadtwinError(Exception):  # type: ignore[no-redef]
-        """Stand-in for roadtwin_core.RoadtwinError when this file is loaded on its own."""
+from ..errors import RoadtwinError
+from ..params import check_params, field
 
 GRAVITY = 9.81  # m/s^2, as in the composed stages' physics scene
 
@@ -53,8 +46,10 @@ CORNERS = ("FL", "FR", "RL", "RR")
 
 def _f(default: float, unit: str, doc: str, *, positive: bool = True, lo: float | None = None,
        hi: float | None = None) -> Any:
-    return dataclasses.field(default=default, metadata={"unit": unit, "doc": doc, "positive": positive,
-                                                        "lo": lo, "hi": hi})
+    """A :func:`roadtwin_core.params.field` (bounds ``lo``/``hi``) with a unit, and > 0 unless
+    ``positive=False``."""
+    base = field(default, lo=lo, hi=hi, doc=doc)
+    return dataclasses.field(default=default, metadata={**base.metadata, "unit": unit, "positive": positive})
 
 
 @dataclass(frozen=True)
@@ -241,16 +236,10 @@ def _check_fields(obj: Any, owner: str) -> None:
         v = getattr(obj, f.name)
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise RoadtwinError(f"{owner}: {f.name} must be a number, got {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise RoadtwinError(f"{owner}: {f.name} must be finite, got {v}")
-        meta = f.metadata
-        if meta.get("positive") and v <= 0:
-            raise RoadtwinError(f"{owner}: {f.name} must be > 0 ({meta['unit']}), got {v}")
-        if meta.get("lo") is not None and v < meta["lo"]:
-            raise RoadtwinError(f"{owner}: {f.name} must be >= {meta['lo']} ({meta['unit']}), got {v}")
-        if meta.get("hi") is not None and v > meta["hi"]:
-            raise RoadtwinError(f"{owner}: {f.name} must be <= {meta['hi']} ({meta['unit']}), got {v}")
+    check_params(obj, owner)          # finite, within lo/hi
+    for f in dataclasses.fields(obj):
+        if f.metadata.get("positive") and getattr(obj, f.name) <= 0:
+            raise RoadtwinError(f"{owner}: {f.name} must be > 0 ({f.metadata['unit']}), got {float(getattr(obj, f.name))}")
 
 
 DEFAULT_CAR = VehicleParams()
