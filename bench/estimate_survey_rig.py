@@ -29,9 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from roadtwin_core.datasets import find_pairs, read_label  # noqa: E402
+from roadtwin_core.datasets import find_pairs, read_label
 
 def _default_data() -> str:
     """../shared/data/road_defects_br/train beside the checkout (or beside any parent folder)."""

@@ -15,23 +15,13 @@ frames (fewer of them), and a check that the first frames' events are the same o
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def load(name: str, rel: str):
-    spec = importlib.util.spec_from_file_location(name, REPO / rel)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod  # warp resolves kernel annotations through sys.modules
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def main() -> None:
@@ -46,8 +36,8 @@ def main() -> None:
     args = ap.parse_args()
     w, h = (int(x) for x in args.size.lower().split("x"))
 
-    EK = load("rt_event_kernels", "plugins/roadtwin_warp_render/event_kernels.py")
-    EV = load("rt_events", "roadtwin_core/render/events.py")
+    import roadtwin_core.render.events as EV
+    import roadtwin_warp_render.event_kernels as EK
     wp = EK.wp
     wp.config.quiet = True
     wp.init()

@@ -12,18 +12,12 @@ over the covered area, plus the pothole depth. Target: RMSE <= 5 mm.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
-try:
-    import roadtwin_lidar as L
-except ImportError:  # not installed with its entry point yet: use the source tree
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "plugins"))
-    import roadtwin_lidar as L
+import roadtwin_lidar as L
 
 
 def run(seed: int, noise: float, frames_n: int) -> dict:

@@ -19,12 +19,13 @@ from pathlib import Path
 
 from rich.console import Console
 
-from roadtwin_core.cli_plan import comparison_table
+from roadtwin_core.apps.plan.report import comparison_table
 from roadtwin_core.compose import compose
 from roadtwin_core.grid import rasterize_scene
 from roadtwin_core.planning import parse_pose, plan_path, polyline_length, reference_path
 from roadtwin_core.plugins import get_plugin_manager
 from roadtwin_core.usd.town_reader import load_town
+from roadtwin_core.vehicle import load_full_vehicle, paper_car
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,9 +35,11 @@ def main() -> None:
     ap.add_argument("--stage", type=Path, default=ROOT / "stages" / "defect_avoidance.usda")
     ap.add_argument("--repeat", type=int, default=1)
     ap.add_argument("--resolution", type=float, default=0.2)
+    ap.add_argument("--vehicle", type=Path, default=None, help="vehicle file (default: the paper's car)")
     args = ap.parse_args()
     console = Console()
     pm = get_plugin_manager()
+    footprint = load_full_vehicle(args.vehicle, paper_car()).footprint()
     with tempfile.TemporaryDirectory() as tmp:
         scene = load_town(args.stage)
         if not scene.colliders:
@@ -60,10 +63,11 @@ def main() -> None:
             for name in names:
                 times, r = [], None
                 for _ in range(max(1, args.repeat)):
-                    r = plan_path(grid, name, start, goal, collision=collision, reference_length=ref, pm=pm)
+                    r = plan_path(grid, name, start, goal, footprint=footprint, collision=collision, reference_length=ref, pm=pm)
                     times.append(r.time_s)
                 r.time_s = statistics.median(times)
                 results.append(r)
+                console.print(f"{name} ({collision}): {r.stats}", highlight=False)
             console.print(comparison_table(results, f"{args.stage.name}: {collision}-level collision, "
                                                     f"median of {max(1, args.repeat)} run(s)"))
 

@@ -12,18 +12,13 @@
 """
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-try:
-    import roadtwin_stereo as rs
-except ImportError:
-    sys.path.insert(0, str(ROOT / "plugins"))
-    import roadtwin_stereo as rs
+import roadtwin_stereo as rs
 from roadtwin_stereo.synthetic import BowlScene, hausdorff_to_bowl, mesh_samples
 
 DATA = ROOT / "tests" / "data" / "stereo_pothole"

@@ -23,11 +23,9 @@ On the CPU the G-buffer is also timed with open3d's Embree ray caster when open3
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -36,14 +34,6 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
-
-
-def _load(name: str, path: Path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def prepare(out: Path, stage: Path | None, poses: int, seed: int, ev_frames: int) -> None:
@@ -78,8 +68,8 @@ def npz_materials(z) -> list[dict]:
 
 def bench(npz: Path, device: str | None, width: int, height: int, frames: int, ev_size: tuple[int, int],
           baseline: float = 0.54, hfov: float = 90.0, save: Path | None = None) -> dict:
-    rc = _load("roadtwin_bench_raycast", REPO / "plugins/roadtwin_warp_render/raycast.py")
-    ev = _load("roadtwin_bench_events", REPO / "roadtwin_core/render/events.py")
+    import roadtwin_core.render.events as ev
+    import roadtwin_warp_render.raycast as rc
     import warp as wp
 
     wp.config.log_level = max(wp.config.log_level, 30)

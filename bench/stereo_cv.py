@@ -27,8 +27,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "plugins"))
-from roadtwin_stereo.segment import (SegmentParams, load_disparity, load_label,  # noqa: E402
+from roadtwin_stereo.segment import (SegmentParams, load_disparity, load_label,
                                      road_residual, segment_residual)
 
 GRID = {"k_seed": [5.0, 7.5, 10.0, 15.0, 20.0], "depth_frac": [0.0, 0.05, 0.1, 0.15, 0.2, 0.3]}

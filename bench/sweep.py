@@ -23,25 +23,15 @@ separately). Not a test.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def load(name: str, rel: str):
-    spec = importlib.util.spec_from_file_location(name, REPO / rel)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod  # warp resolves kernel annotations through sys.modules
-    spec.loader.exec_module(mod)
-    return mod
 
 
 # ----------------------------------------------------------------------------- synthetic town
@@ -151,8 +141,8 @@ def main() -> None:
     n = args.vehicles or (4096 if cuda else 8)
     seconds = args.seconds or (5.0 if cuda else 2.0)
 
-    K = load("rt_warp_kernels", "plugins/roadtwin_warp_physics/kernels.py")
-    VP = load("rt_vehicle", "roadtwin_core/vehicle/vehicle.py")
+    import roadtwin_core.vehicle.vehicle as VP
+    import roadtwin_warp_physics.kernels as K
     import warp as wp
 
     K.quiet()
@@ -203,7 +193,7 @@ def main() -> None:
                             t=res["t"])
     if not cuda and not args.no_pybullet:
         try:
-            S = load("rt_bullet_sim", "plugins/roadtwin_pybullet/sim.py")
+            import roadtwin_pybullet.sim as S
         except ImportError as exc:
             print(f"pybullet: skipped ({exc})")
         else:

@@ -1,10 +1,14 @@
-"""Write a whole output directory or nothing: build it beside the target, then swap it in."""
+"""Write an output (a directory, one file or several files) or nothing: build it beside the
+target under a hidden ``.NAME.tmp-PID`` name, then swap it in with ``os.replace``. What a crashed
+run (``kill -9``, power loss) left beside a target is removed by the next run for that target.
+The one place roadtwin and its plugins write outputs atomically."""
 from __future__ import annotations
 
 import contextlib
 import os
 import shutil
 from pathlib import Path
+from typing import Iterator
 
 from .errors import RoadtwinError
 
@@ -45,22 +49,32 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def remove_stale(outdir: Path) -> list[Path]:
-    """Remove what crashed runs (``kill -9``, power loss) left beside ``outdir``: its hidden
-    ``.NAME.tmp-PID`` / ``.NAME.old-PID`` folders whose process no longer exists. Another live
-    run's folders are left alone. A run killed between its two renames leaves the previous
-    output only in ``.old-PID``: that is put back first, so nothing the user had is lost."""
+def remove_stale(target: Path) -> list[Path]:
+    """Remove what crashed runs (``kill -9``, power loss) left beside ``target``: its hidden
+    ``.NAME.tmp-PID`` / ``.NAME.old-PID`` folders (and ``.STEM.tmp-PID.SUFFIX`` files, see
+    :func:`atomic_files`) whose process no longer exists. Another live run's are left alone. A
+    run killed between its two renames leaves the previous output only in ``.old-PID``: that is
+    put back first, so nothing the user had is lost."""
+    target = Path(target)
     removed = []
-    for kind in ("old", "tmp"):
-        for path in sorted(outdir.parent.glob(f".{outdir.name}.{kind}-*")):
-            pid = path.name.rsplit("-", 1)[-1]
-            if not pid.isdigit() or int(pid) == os.getpid() or _alive(int(pid)):
-                continue
-            if kind == "old" and not outdir.exists():
-                os.replace(path, outdir)
-                continue
+    litter = [("old", p, p.name.rsplit("-", 1)[-1])
+              for p in sorted(target.parent.glob(f".{target.name}.old-*"))]
+    litter += [("tmp", p, p.name.rsplit("-", 1)[-1]) for p in sorted(target.parent.glob(f".{target.name}.tmp-*"))]
+    if target.suffix:      # a file's temporaries keep its suffix: .STEM.tmp-PID.SUFFIX
+        litter += [("tmp", p, p.name[:-len(target.suffix)].rsplit("-", 1)[-1])
+                   for p in sorted(target.parent.glob(f".{target.stem}.tmp-*{target.suffix}"))]
+    for kind, path, pid in litter:
+        if not pid.isdigit() or int(pid) == os.getpid() or _alive(int(pid)) or not os.path.lexists(path):
+            continue
+        if kind == "old" and not target.exists():
+            os.replace(path, target)
+            continue
+        if path.is_dir() and not path.is_symlink():
             shutil.rmtree(path, ignore_errors=True)
-            removed.append(path)
+        else:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        removed.append(path)
     return removed
 
 
@@ -77,8 +91,52 @@ def make_parent(path: str | Path) -> Path:
     return path
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+def _file_tmp(target: Path) -> Path:
+    """The temporary beside a file target: hidden, with the pid (two runs never share one) and
+    the target's suffix (writers such as USD and trimesh pick the format from it)."""
+    return target.with_name(f".{target.stem}.tmp-{os.getpid()}{target.suffix}")
+
+
+@contextlib.contextmanager
+def atomic_files(*targets: str | Path, parents: bool = True) -> Iterator[list[Path]]:
+    """Yield one temporary path per target, in the target's folder and with its suffix. On
+    success each temporary replaces its target, in the order given (so a companion file such as
+    an OBJ's ``.mtl`` is in place before the file that names it); on any error every temporary
+    is removed and the targets are untouched. Crash litter of earlier runs is removed first.
+    ``parents=False``: a missing folder is an error instead of being created."""
+    targets = tuple(Path(t) for t in targets)
+    tmps = []
+    for target in targets:
+        if parents:
+            make_parent(target)
+        if target.is_dir():
+            raise RoadtwinError(f"{target}: is a directory")
+        remove_stale(target)
+        tmps.append(_file_tmp(target))
+    try:
+        yield tmps
+        for tmp, target in zip(tmps, targets):
+            os.replace(tmp, target)
+    except OSError as exc:
+        _unlink(tmps)
+        raise RoadtwinError(f"{targets[0]}: cannot write ({exc.strerror or exc})") from None
+    except BaseException:
+        _unlink(tmps)
+        raise
+
+
+def atomic_write_bytes(path: str | Path, data: bytes, parents: bool = True) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_files`)."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    with atomic_files(path, parents=parents) as (tmp,):
+        tmp.write_bytes(data)
+    return path
+
+
+def _unlink(paths: list[Path]) -> None:
+    for p in paths:
+        with contextlib.suppress(OSError):
+            p.unlink()
+
+
+__all__ = ["atomic_files", "atomic_output_dir", "atomic_write_bytes", "make_parent", "remove_stale"]

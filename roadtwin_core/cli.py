@@ -170,8 +170,6 @@ def import_layout(
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"importer {PARAM_HELP}"),
 ) -> None:
     """Import a foreign road network (e.g. OpenDRIVE) as a roadtwin layout."""
-    import os as _os
-
     from pxr import Sdf
 
     from .params import cli_params
@@ -187,16 +185,10 @@ def import_layout(
         raise RoadtwinError(f"{out}: a layout must be a USD file (.usda, .usd or .usdc)")
     output_path(out)
     layout = imp.load(source, params)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise RoadtwinError(f"{out}: cannot create its folder ({exc.strerror})") from None
-    tmp = out.with_name(f".{out.stem}.tmp-{_os.getpid()}{out.suffix}")
-    try:
+    from .atomic import atomic_files
+
+    with atomic_files(out) as (tmp,):
         write_layout(layout, tmp, f"roadtwin layout imported from {source.name} by {importer}")
-        _os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
     console.print(f"wrote {out}: {len(layout.segments)} segments")
 
 

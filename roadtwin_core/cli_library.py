@@ -199,23 +199,19 @@ def add_asset(src: Path, folder: Path, force: bool = False) -> Path:
     clash = [t for _, t in targets if t.exists()]
     if clash and not force:
         raise RoadtwinError(f"{folder}: {clash[0].name} already exists (use --force to replace it)")
-    tmps: list[Path] = []
-    done: list[Path] = []
+    from .atomic import atomic_files
+
+    replaced = False
     try:
-        for s, t in targets:
-            tmp = t.with_name(f".{t.name}.tmp-{os.getpid()}")
-            tmps.append(tmp)
-            shutil.copyfile(s, tmp)
-        for tmp, (_, t) in zip(tmps, targets):
-            os.replace(tmp, t)
-            done.append(t)
+        with atomic_files(*(t for _, t in targets)) as tmps:
+            for tmp, (s, _) in zip(tmps, targets):
+                shutil.copyfile(s, tmp)
+        replaced = True
         read_defect_asset(folder / src.name)
     except Exception as exc:
-        for p in tmps:
-            p.unlink(missing_ok=True)
-        if not clash:
-            for p in done:
-                p.unlink(missing_ok=True)
+        if replaced and not clash:
+            for _, t in targets:
+                t.unlink(missing_ok=True)
         if isinstance(exc, RoadtwinError):
             raise
         raise RoadtwinError(f"{folder}: cannot add {src.name} ({type(exc).__name__}: {exc})") from None

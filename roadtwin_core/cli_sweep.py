@@ -1,6 +1,6 @@
 """``roadtwin sweep``: vibration sweeps over a town's defects (or a straight ISO 8608 test road).
 
-The command function lives here so the CLI module stays small; ``cli.py`` registers it with::
+Options only: what the command does is ``roadtwin_core.apps.sweep``. ``cli.py`` registers it with::
 
     from .cli_sweep import sweep; app.command()(sweep)
 
@@ -13,21 +13,11 @@ from typing import Optional
 
 import typer
 from ._console import console, err_console
-from rich.table import Table
 
 from .errors import RoadtwinError
 from .params import PARAM_HELP, cli_params
 
 _console, _err = console, err_console
-
-
-def parse_tire(spec: str) -> tuple[int, int, int]:
-    import re
-
-    m = re.fullmatch(r"\s*(\d+)\s*x\s*(\d+)\s*(?:\+\s*(\d+))?\s*", str(spec))
-    if not m:
-        raise RoadtwinError(f"sweep: --tire {spec!r}: expected SLICESxARC_RAYS[+ROUNDS], e.g. 3x7+2")
-    return int(m.group(1)), int(m.group(2)), int(m.group(3) or 0)
 
 
 def sweep(
@@ -55,38 +45,24 @@ def sweep(
 ) -> None:
     """Drive vehicles over defects at several speeds; write g/aw per run, IMU traces, plots and a
     recommended speed per defect."""
+    from .apps.sweep import SweepConfig, parse_offsets, parse_speeds, run_sweep
+    from .apps.sweep.report import print_report
+    from .apps.sweep.setup import load_scenario, sim_params
     from .atomic import atomic_output_dir
-    from .usd.checks import output_path
     from .plugins import get_plugin_manager
-    from .vehicle import (QuarterCarParams, SimParams, SweepConfig, VehicleParams, load_vehicle, parse_offsets,
-                          parse_speeds, run_sweep)
-    from .vehicle.roads import load_town_scenario, straight_road_scenario
+    from .usd.checks import output_path
+    from .vehicle import VehicleParams, load_full_vehicle
 
     output_path(out, "dir")
     if (stage is None) == (surface is None):
         raise RoadtwinError("sweep: give either a STAGE or --surface iso8608:CLASS (not both, not neither)")
     speed_list = parse_speeds(speeds)
     offset_list = parse_offsets(offsets)
-    params = load_vehicle(vehicle) if vehicle is not None else VehicleParams()
-    if isinstance(params, QuarterCarParams):
-        raise RoadtwinError(f"vehicle file {vehicle}: sweeps need a full vehicle (model = \"full\")")
-    nl, na, refine = parse_tire(tire)
-    sim = SimParams(dt_s=dt, imu_rate_hz=imu_rate, device=device, tire_slices=nl, tire_arc_samples=na,
-                    tire_refine=refine).check("sweep")
+    params = load_full_vehicle(vehicle, VehicleParams())
+    sim = sim_params(dt, imu_rate, device, tire)
     sim = cli_params(param, sim, f"physics backend {backend}").check("sweep")
     engine = get_plugin_manager().get("physics_backends", backend)
-    if seed < 0:
-        raise RoadtwinError(f"sweep: seed must be >= 0, got {seed}")
-    ids = [d.strip() for d in defects.split(",") if d.strip()] if defects else None
-    if defects is not None and not ids:
-        raise RoadtwinError(f"sweep: --defects {defects!r} names no defect")
-    if surface is not None:
-        scenario = straight_road_scenario(length, None if surface.strip().lower() == "flat" else surface, seed)
-        scenario = scenario.select(ids)
-    else:
-        if not stage.exists():
-            raise RoadtwinError(f"{stage}: no such file")
-        scenario = load_town_scenario(stage, ids)
+    scenario = load_scenario(stage, surface, length, seed, defects)
     config = SweepConfig(speeds_kmh=speed_list, vehicles={params.name: params}, offsets_m=offset_list, sim=sim)
 
     def progress(msg: str) -> None:
@@ -94,20 +70,4 @@ def sweep(
 
     with atomic_output_dir(out) as tmp:
         result = run_sweep(scenario, engine, config, outdir=tmp, plots=plots, rerun=rerun, progress=progress)
-    s = result["summary"]
-    table = Table(title=f"sweep: {len(scenario.crossings)} defect(s) x {len(speed_list)} speed(s) on {backend}")
-    for col in ("defect", "type", "recommended km/h", "g there", "g max (at km/h)", "comfortable up to", "note"):
-        table.add_column(col)
-    for r in result["recommendations"][:50]:
-        fmt = (lambda v: "-" if v is None else f"{v:.3g}")
-        table.add_row(str(r["defect"]), str(r.get("defect_type", "")), fmt(r["recommended_speed_kmh"]),
-                      fmt(r["g_at_recommended"]), f"{fmt(r.get('g_max'))} ({fmt(r.get('speed_of_g_max_kmh'))})",
-                      fmt(r["max_comfortable_speed_kmh"]), str(r["note"]))
-    _console.print(table)
-    _console.print(f"{s['runs']} runs + {s['runs']} twin runs, {s['simulated_vehicle_s']:.1f} vehicle-s simulated in "
-                   f"{s['simulation_wall_s']:.2f} s on {s['device']} (real-time factor {s['realtime_factor']:.1f}x); "
-                   f"wrote {out}", highlight=False)
-    for note in s.get("notes", []):
-        _console.print(f"note: {note}", highlight=False)
-    if s["off_road_runs"]:
-        _console.print(f"note: {s['off_road_runs']} run(s) left the road (see the off_road column)", highlight=False)
+    print_report(_console, result, out, backend, len(speed_list))

@@ -24,6 +24,9 @@ import numpy as np
 
 from .errors import RoadtwinError
 
+__all__ = ["IGNORE_INDEX", "IMAGE_SUFFIXES", "Sample", "SegmentationFolder", "find_pairs", "load_folder", "read_image",
+           "read_label", "read_sample"]
+
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 IGNORE_INDEX = 255
 

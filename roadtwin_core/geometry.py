@@ -87,6 +87,70 @@ def vertical_ray_hits(origins_xy: np.ndarray, tri: np.ndarray, eps: float = 1e-1
     return ok[None] & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= 0)
 
 
+class MeshHeights:
+    """Height of the topmost triangle under XY points (NaN off the mesh): the one helper for
+    "the surface under (x, y)" (cameras placed above the road, OpenCRG grids draped on it). A
+    uniform grid over the triangles' XY bounding boxes (sorted cell keys, numpy only: about 40
+    bytes a triangle, where a shapely STRtree of 1.8 M triangle polygons took 1.5 GB), then a
+    barycentric inside test in XY (what a vertical ray's Möller–Trumbore test reduces to) and z.
+    Triangles with no XY area (walls) are never under a point.
+
+    ``cell_m`` is the grid pitch; by default the median triangle's XY extent (at least 5 cm),
+    so a point meets a few candidates whatever the mesh's resolution."""
+
+    CHUNK = 2_000_000          # point-triangle candidate pairs tested at once (bounds memory)
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, cell_m: float | None = None):
+        tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64).reshape(-1, 3)]
+        area = 0.5 * np.abs((tri[:, 1, 0] - tri[:, 0, 0]) * (tri[:, 2, 1] - tri[:, 0, 1])
+                            - (tri[:, 1, 1] - tri[:, 0, 1]) * (tri[:, 2, 0] - tri[:, 0, 0]))
+        self.tri = np.ascontiguousarray(tri[area > 1e-12])
+        lo, hi = self.tri[:, :, :2].min(axis=1), self.tri[:, :, :2].max(axis=1)
+        if cell_m is None:
+            cell_m = max(float(np.median((hi - lo).max(axis=1))), 0.05) if len(lo) else 1.0
+        self.cell = float(cell_m)
+        self.origin = lo.min(axis=0) if len(lo) else np.zeros(2)
+        c0 = np.floor((lo - self.origin) / self.cell).astype(np.int64)
+        c1 = np.floor((hi - self.origin) / self.cell).astype(np.int64)
+        self.ny = int(c1[:, 1].max()) + 2 if len(c1) else 1
+        nx, ny = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
+        count = nx * ny
+        owner = np.repeat(np.arange(len(self.tri)), count)
+        k = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)
+        keys = (c0[owner, 0] + k % nx[owner]) * self.ny + c0[owner, 1] + k // nx[owner]
+        order = np.argsort(keys, kind="stable")
+        self.keys, self.owner = keys[order], owner[order].astype(np.int64)
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
+        out = np.full(len(xy), np.nan)
+        if not len(xy) or not len(self.tri):
+            return out
+        c = np.floor((xy - self.origin) / self.cell).astype(np.int64)
+        ok = (c >= 0).all(axis=1) & (c[:, 1] < self.ny)
+        q = np.where(ok, c[:, 0] * self.ny + c[:, 1], -1)
+        first, last = np.searchsorted(self.keys, q, "left"), np.searchsorted(self.keys, q, "right")
+        n = np.where(ok, last - first, 0)
+        pi = np.repeat(np.arange(len(xy)), n)
+        if not len(pi):
+            return out
+        ti = self.owner[np.repeat(first, n) + np.arange(len(pi)) - np.repeat(np.cumsum(n) - n, n)]
+        for s in range(0, len(pi), self.CHUNK):
+            self._top(xy, pi[s:s + self.CHUNK], ti[s:s + self.CHUNK], out)
+        return out
+
+    def _top(self, xy: np.ndarray, pi: np.ndarray, ti: np.ndarray, out: np.ndarray) -> None:
+        a, b, cc = self.tri[ti, 0], self.tri[ti, 1], self.tri[ti, 2]
+        p = xy[pi]
+        v0, v1, v2 = b[:, :2] - a[:, :2], cc[:, :2] - a[:, :2], p - a[:, :2]
+        den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+        beta = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
+        gamma = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
+        inside = (beta >= -1e-9) & (gamma >= -1e-9) & (beta + gamma <= 1 + 1e-9)
+        z = a[:, 2] + beta * (b[:, 2] - a[:, 2]) + gamma * (cc[:, 2] - a[:, 2])
+        np.fmax.at(out, pi[inside], z[inside])
+
+
 def triangle_min_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """Smallest interior angle (degrees, in XY) of each triangle."""
     p = vertices[faces][:, :, :2]
@@ -116,4 +180,4 @@ def loops_from_edges(edges: np.ndarray) -> list[np.ndarray]:
 
 
 __all__ = ["boundary_edges", "edge_face_counts", "mesh_outline_polygon", "polygon_loops",
-           "subdivide_edge", "vertical_ray_hits", "triangle_min_angles", "loops_from_edges"]
+           "subdivide_edge", "vertical_ray_hits", "MeshHeights", "triangle_min_angles", "loops_from_edges"]

@@ -2,6 +2,7 @@
 the next run for the same output removes it (and only folders of dead processes)."""
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
@@ -59,3 +60,23 @@ def test_a_run_killed_between_its_renames_gives_the_earlier_output_back(tmp_path
         assert (out / "result.txt").read_text() == "earlier output"
         raise RuntimeError("this run fails too")
     assert (out / "result.txt").read_text() == "earlier output" and not old.exists()
+
+
+def test_file_outputs_share_the_crash_cleanup_and_leave_nothing_on_error(tmp_path):
+    from roadtwin_core.atomic import atomic_files, atomic_write_bytes
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    out = tmp_path / "road.crg"
+    litter = tmp_path / f".road.tmp-{dead.pid}.crg"            # what a kill -9 mid-write leaves
+    litter.write_bytes(b"half")
+    live = tmp_path / f".road.tmp-{os.getppid()}.crg"          # a running process's: kept
+    live.write_bytes(b"busy")
+    atomic_write_bytes(out, b"whole")
+    assert out.read_bytes() == b"whole" and not litter.exists() and live.exists()
+    with pytest.raises(RuntimeError), atomic_files(out, tmp_path / "road.mtl") as (a, b):
+        a.write_bytes(b"new")
+        b.write_bytes(b"new")
+        raise RuntimeError("writer failed")
+    assert out.read_bytes() == b"whole" and not (tmp_path / "road.mtl").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["road.crg", live.name])

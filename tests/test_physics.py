@@ -31,9 +31,10 @@ from typer.testing import CliRunner
 
 from roadtwin_core import PluginManager, RoadtwinError
 from roadtwin_core import plugins as plugins_mod
-from roadtwin_core.vehicle import (DEFAULT_CAR, QuarterCarParams, RoadMesh, SimParams, SweepConfig, VehicleParams,
-                                   VehicleRun, build_matrix, comfort_band, compute_rows, grid_mesh, load_vehicle,
-                                   parse_speeds, recommend, step_road, straight_road, straight_road_scenario,
+from roadtwin_core.apps.sweep import SweepConfig, build_matrix, compute_rows, parse_speeds, recommend
+from roadtwin_core.vehicle import (DEFAULT_CAR, QuarterCarParams, RoadMesh, SimParams, VehicleParams,
+                                   VehicleRun, comfort_band, grid_mesh, load_vehicle,
+                                   step_road, straight_road, straight_road_scenario,
                                    vehicle_to_toml, wk_digital, wk_magnitude)
 from roadtwin_core.vehicle.vehicle import GRAVITY
 
@@ -243,7 +244,7 @@ def test_warp_is_deterministic(warp):
 
 # ----------------------------------------------------------------------------- cross-backend and findings
 def sweep_rows(backend, speeds, surface=None):
-    from roadtwin_core.vehicle import run_sweep
+    from roadtwin_core.apps.sweep import run_sweep
 
     res = run_sweep(straight_road_scenario(60.0, surface), backend, SweepConfig(speeds_kmh=speeds))
     return {(r["defect"], r["speed_kmh"]): r for r in res["rows"]}, res

@@ -21,16 +21,18 @@ from typer.testing import CliRunner
 from roadtwin_core import RoadtwinError
 from roadtwin_core.cli_plan import plan
 from roadtwin_core.grid import GridMap, rasterize, rasterize_scene
-from roadtwin_core.planning import (CollisionChecker, Vehicle, parse_pose, path_metrics, plan_path, reference_path,
+from roadtwin_core.planning import (CollisionChecker, Footprint, parse_pose, path_metrics, plan_path, reference_path,
                                     transform)
 from roadtwin_core.plugins import get_plugin_manager
 from roadtwin_core.usd.town_reader import TownDefect, TownMesh, TownScene
 from roadtwin_core.usd.validate import validate_stage
+from roadtwin_core.vehicle import VehicleParams, paper_car
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "stages" / "defect_avoidance.usda"
 PLANNERS = ("astar", "rrtstar", "lattice", "hybrid_astar")
 START, GOAL = (4.0, -1.75, 0.0), (105.0, -1.75, 0.0)
+PAPER = paper_car().footprint()   # the paper's car: what plan uses by default
 
 app = typer.Typer()
 app.command()(plan)
@@ -63,7 +65,7 @@ def grid(town) -> GridMap:
 @pytest.fixture(scope="module")
 def results(grid):
     """{(planner, collision): PlanResult} on the scenario."""
-    return {(n, c): plan_path(grid, n, START, GOAL, collision=c) for n in PLANNERS for c in ("wheel", "body")}
+    return {(n, c): plan_path(grid, n, START, GOAL, footprint=PAPER, collision=c) for n in PLANNERS for c in ("wheel", "body")}
 
 
 def open_grid(w=30.0, h=10.0, res=0.2, origin=(0.0, -5.0)) -> GridMap:
@@ -153,7 +155,7 @@ def test_metrics_straight_path_known_clearance():
     g = GridMap.build(g.origin, g.resolution, g.drivable, defect)
     assert np.allclose(g.cell_to_world(0, row)[1], 2.5)
     poses = np.array([[5.0, 0.0, 0.0], [20.0, 0.0, 0.0]])
-    m = path_metrics(g, poses, reference_length=15.0)
+    m = path_metrics(g, poses, PAPER, reference_length=15.0)
     assert m.length_m == pytest.approx(15.0)
     assert m.deviation_pct == pytest.approx(0.0, abs=1e-9)
     assert m.smoothness_rad_per_m == 0.0
@@ -168,14 +170,14 @@ def test_metrics_straight_path_known_clearance():
     assert m.min_clearance_m == pytest.approx(1.5, abs=1e-9)
     assert not m.wheel_in_defect and not m.off_road and m.collision_free
     # The same path 1.4 m further left puts the left wheels on the defect row.
-    m = path_metrics(g, poses + [0, 1.5, 0], reference_length=15.0)
+    m = path_metrics(g, poses + [0, 1.5, 0], PAPER, reference_length=15.0)
     assert m.wheel_in_defect and m.defects_under_wheels == ["defect"] and not m.collision_free
 
 
 def test_metrics_one_known_turn():
     g = open_grid(40, 40, origin=(-15.0, -15.0))
     poses = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [10.0, 10.0, math.pi / 2]])
-    m = path_metrics(g, poses)
+    m = path_metrics(g, poses, PAPER)
     assert m.length_m == pytest.approx(20.0)
     assert m.total_turn_rad == pytest.approx(math.pi / 2)
     assert m.smoothness_rad_per_m == pytest.approx(math.pi / 2 / 20.0)
@@ -184,7 +186,7 @@ def test_metrics_one_known_turn():
     assert math.isinf(m.mean_clearance_m)                               # no defects at all
     # A turn on the spot (a repeated point) counts the same.
     spot = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [10.0, 0.0, math.pi / 2], [10.0, 10.0, math.pi / 2]])
-    assert path_metrics(g, spot).smoothness_rad_per_m == pytest.approx(math.pi / 2 / 20.0)
+    assert path_metrics(g, spot, PAPER).smoothness_rad_per_m == pytest.approx(math.pi / 2 / 20.0)
 
 
 def test_reference_path_follows_the_lanes_around_a_corner():
@@ -209,11 +211,11 @@ def test_collision_levels_straddle():
     defect[np.hypot(c[..., 0] - 12.0, c[..., 1]) < 0.3] = True
     g = GridMap.build(g.origin, g.resolution, g.drivable, defect)
     pose = np.array([[11.0, 0.0, 0.0]])
-    assert CollisionChecker(g, Vehicle(), "wheel").free(pose)[0]
-    assert not CollisionChecker(g, Vehicle(), "body").free(pose)[0]
-    assert "body covers defect" in CollisionChecker(g, Vehicle(), "body").explain(pose[0])
+    assert CollisionChecker(g, PAPER, "wheel").free(pose)[0]
+    assert not CollisionChecker(g, PAPER, "body").free(pose)[0]
+    assert "body covers defect" in CollisionChecker(g, PAPER, "body").explain(pose[0])
     # One track width to the side, the right wheels roll through it.
-    assert "rear-right wheel is inside defect" in CollisionChecker(g, Vehicle(), "wheel").explain((12.0, 1.0, 0.0))
+    assert "rear-right wheel is inside defect" in CollisionChecker(g, PAPER, "wheel").explain((12.0, 1.0, 0.0))
 
 
 def test_disc_shortcut_matches_point_lookup():
@@ -225,13 +227,13 @@ def test_disc_shortcut_matches_point_lookup():
     g = GridMap.build(g.origin, g.resolution, drivable, defect)
     poses = np.column_stack([rng.uniform(0, 30, 3000), rng.uniform(-5, 5, 3000), rng.uniform(-4, 4, 3000)])
     for level in ("wheel", "body"):
-        ch = CollisionChecker(g, Vehicle(), level)
+        ch = CollisionChecker(g, PAPER, level)
         exact = ~ch.blocked_at(transform(poses, ch.motion_local)).any(axis=1)
         assert np.array_equal(ch.free(poses), exact)
 
 
 # --------------------------------------------------------------------------- planners on the scenario
-def _tire_cells_hit_defects(grid: GridMap, poses: np.ndarray, vehicle: Vehicle) -> bool:
+def _tire_cells_hit_defects(grid: GridMap, poses: np.ndarray, vehicle: Footprint) -> bool:
     """Independent of the checker's point sets: tire centres and (inset) corners, by trigonometry,
     at every sample of the path's motion."""
     dense = CollisionChecker(grid, vehicle, "wheel").densify(poses)
@@ -253,7 +255,7 @@ def test_wheel_level_paths_never_put_a_wheel_on_a_defect(results, grid, name):
         r = results[(name, level)]
         m = r.metrics
         assert m.collision_free and not m.wheel_in_defect and not m.off_road, (name, level)
-        assert not _tire_cells_hit_defects(grid, r.poses, Vehicle()), (name, level)
+        assert not _tire_cells_hit_defects(grid, r.poses, PAPER), (name, level)
         assert np.allclose(r.poses[0], START) and np.allclose(r.poses[-1], GOAL)
     assert not results[(name, "body")].metrics.body_over_defect
     # Straddling is what wheel-level planning buys: the wheel-level path drives over defects
@@ -281,7 +283,7 @@ def test_planners_are_deterministic_and_match_the_command(results, planned, grid
     for n in PLANNERS:
         assert rows[n]["status"] == "ok" and rows[n]["collision"] == "wheel"
         assert float(rows[n]["length_m"]) == pytest.approx(results[(n, "wheel")].metrics.length_m, abs=1e-3)
-    again = plan_path(grid, "rrtstar", START, GOAL, seed=0)
+    again = plan_path(grid, "rrtstar", START, GOAL, footprint=PAPER, seed=0)
     assert np.array_equal(again.poses, results[("rrtstar", "wheel")].poses)
 
 
@@ -302,7 +304,7 @@ def test_motion_footprint_mode_on_an_open_square(name):
     c = g.cell_to_world(ix, iy)
     defect[(np.abs(c[..., 0] - 15.0) < 1.5) & (np.abs(c[..., 1]) < 6.0)] = True   # a wide block ahead
     g = GridMap.build(g.origin, g.resolution, g.drivable, defect)
-    r = plan_path(g, name, (0.0, 0.0, 0.0), (28.0, 0.0, 0.0), params={"footprint": "motion"}, seed=1)
+    r = plan_path(g, name, (0.0, 0.0, 0.0), (28.0, 0.0, 0.0), footprint=PAPER, params={"footprint": "motion"}, seed=1)
     assert r.metrics.collision_free and not r.metrics.wheel_in_defect
     assert r.metrics.length_m > 28.0
 
@@ -322,7 +324,7 @@ def test_dubins_and_lattice_primitives():
     lattice = StateLattice()
     from roadtwin_core import make_params
 
-    prims = lattice.primitives(Vehicle(), make_params(lattice.Params, {}, "lattice"))
+    prims = lattice.primitives(PAPER, make_params(lattice.Params, {}, "lattice"))
     assert len(prims) >= 9
     for curve, cost, _ in prims:
         d = np.diff(curve[:, :2], axis=0)
@@ -401,7 +403,7 @@ def test_unreachable_goal():
     drivable[:, 70:80] = False
     g = GridMap.build(g.origin, g.resolution, drivable)
     with pytest.raises(RoadtwinError, match="goal is unreachable: no drivable connection from the start"):
-        plan_path(g, "astar", (2.0, 0.0, 0.0), (22.0, 0.0, 0.0))
+        plan_path(g, "astar", (2.0, 0.0, 0.0), (22.0, 0.0, 0.0), footprint=PAPER)
     # Connected, but a defect band across the whole road: no wheel can get past it.
     g = open_grid(30, 8, origin=(0.0, -4.0))
     defect = np.zeros(g.shape, bool)
@@ -409,15 +411,52 @@ def test_unreachable_goal():
     g = GridMap.build(g.origin, g.resolution, g.drivable, defect)
     for name in ("astar", "hybrid_astar"):
         with pytest.raises(RoadtwinError, match=f"planner {name}: found no wheel-level collision-free path"):
-            plan_path(g, name, (2.0, 0.0, 0.0), (22.0, 0.0, 0.0), params={"max_expansions": 20000})
+            plan_path(g, name, (2.0, 0.0, 0.0), (22.0, 0.0, 0.0), footprint=PAPER, params={"max_expansions": 20000})
 
 
 def test_parse_pose_and_vehicle():
     assert parse_pose(" 1, -2.5 ,0.3", "x") == (1.0, -2.5, 0.3)
     with pytest.raises(RoadtwinError, match="x must be X,Y,YAW"):
         parse_pose("1,nan,0", "x")
-    v = Vehicle()
+    v = PAPER   # the paper's car: 2.0 m track, 3.0 m wheelbase, 0.2 m tires, 0.6 rad lock
+    assert (v.track_m, v.wheelbase_m, v.tire_width_m) == (2.0, 3.0, 0.2)
     assert v.straddle_gap_m == pytest.approx(1.8)
     assert v.min_turn_radius_m == pytest.approx(3.0 / math.tan(0.6))
-    with pytest.raises(RoadtwinError, match="tire_width_m must be smaller than track_m"):
-        Vehicle(tire_width_m=2.5)
+    with pytest.raises(RoadtwinError, match="tire_width_m .* must be less than track_front_m"):
+        VehicleParams(track_front_m=0.15, track_rear_m=0.15, tire_width_m=0.2).check()
+    with pytest.raises(RoadtwinError, match="track_front_m == track_rear_m"):
+        VehicleParams(track_front_m=1.5, track_rear_m=1.6).footprint()
+
+
+def test_footprint_is_the_physics_vehicle():
+    """One vehicle: the footprint planning uses is read off VehicleParams (wheel centres at
+    (0, +-track/2) and (wheelbase, +-track/2) from the rear axle), for any car."""
+    car = VehicleParams(name="van", wheelbase_m=3.3, cg_to_front_axle_m=1.4, track_front_m=1.7, track_rear_m=1.7,
+                        body_length_m=5.2, rear_overhang_m=1.0).check()
+    fp = car.footprint()
+    np.testing.assert_allclose(fp.wheel_offsets(), [[0, 0.85], [0, -0.85], [3.3, 0.85], [3.3, -0.85]])
+    assert fp.tire_width_m == car.tire_width_m and fp.tire_length_m == car.tire_contact_length_m
+    x0, x1, _, _ = fp.body_rect()
+    assert (x0, x1) == pytest.approx((-1.0, 4.2))
+
+
+def test_plan_sweep_needs_the_sweep_of_the_planned_car(town, tmp_path):
+    """`plan --vehicle FILE --sweep DIR`: the car planned for is the car whose vibration decides.
+    A sweep of the paper car cannot decide for the default sedan; the sedan's own sweep can, and
+    the path is then planned with the sedan's footprint (1.55 m track, not the paper car's 2.0 m)."""
+    from roadtwin_core.vehicle import DEFAULT_CAR
+    from roadtwin_core.apps.sweep.run import dataclass_dict
+
+    sedan = ROOT / "roadtwin_core" / "vehicle" / "default_car.toml"
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "recommendations.json").write_text("[]")
+    (sweep / "summary.json").write_text(json.dumps({"vehicles": {"paper_car": dataclass_dict(paper_car())}}))
+    result = run_cli(town, "-p", "astar", "--vehicle", sedan, "--sweep", sweep, "-o", tmp_path / "out")
+    assert isinstance(result.exception, RoadtwinError), result.output
+    assert "not the car being planned for, default_car (track 1.55 m" in str(result.exception)
+    (sweep / "summary.json").write_text(json.dumps({"vehicles": {"default_car": dataclass_dict(DEFAULT_CAR)}}))
+    result = run_cli(town, "-p", "astar", "--vehicle", sedan, "--sweep", sweep, "-o", tmp_path / "out")
+    assert result.exit_code == 0, (result.output, result.exception)
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["vehicle"]["track_m"] == 1.55 and metrics["vehicle"]["wheelbase_m"] == 2.7

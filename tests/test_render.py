@@ -23,9 +23,11 @@ import roadtwin_core.plugins as plugins_mod
 import roadtwin_defects
 import roadtwin_warp_render
 from roadtwin_core import PluginManager, RoadtwinError
-from roadtwin_core.cli_render import parse_size, render, run_render
+from roadtwin_core.apps.render import parse_size, run_render
+from roadtwin_core.apps.render.writers import rle_decode, rle_encode
+from roadtwin_core.cli_render import render
 from roadtwin_core.render import (Camera, EventSimulator, Intrinsics, RenderParams, StereoCamera, build_render_mesh,
-                                  look_from, rle_decode, rle_encode)
+                                  look_from)
 from roadtwin_core.usd.town_reader import TownDefect, TownMesh, TownScene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -254,6 +256,26 @@ def test_event_polarity_on_rendered_scene(renderer, direction):
 
 
 # --------------------------------------------------------------------------- RLE
+def _coco_rle_to_mask(rle: dict) -> np.ndarray:
+    """COCO compressed RLE decoded from the format's definition (pycocotools' ``rleFrString``),
+    independently of roadtwin's decoder: characters offset by 48 carry 5 data bits, 0x20 = more
+    characters follow, 0x10 in the last one = negative; from the third count on, each is stored
+    as its difference to the count two before; runs alternate 0/1 in column-major order."""
+    s, counts, p = rle["counts"], [], 0
+    while p < len(s):
+        x, k, more = 0, 0, True
+        while more:
+            c = ord(s[p]) - 48
+            x |= (c & 0x1F) << (5 * k)
+            more = bool(c & 0x20)
+            p, k = p + 1, k + 1
+            if not more and c & 0x10:
+                x |= -1 << (5 * k)
+        counts.append(x + counts[-2] if len(counts) > 2 else x)
+    h, w = rle["size"]
+    return np.repeat(np.arange(len(counts)) % 2, counts).astype(bool).reshape(w, h).T
+
+
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pycocotools vs numpy 2
 def test_rle_roundtrip_and_pycocotools():
     rng = np.random.default_rng(0)
@@ -271,6 +293,13 @@ def test_rle_roundtrip_and_pycocotools():
     # hand-checked: a 2x2 mask [[0,1],[1,1]] in column-major order is 0,1,1,1 -> runs [1, 3]
     assert rle_decode({"size": [2, 2], "counts": [1, 3]}).tolist() == [[0, 1], [1, 1]]
     assert rle_decode(rle_encode(np.array([[0, 1], [1, 1]], bool))).tolist() == [[0, 1], [1, 1]]
+    # hand-encoded strings: runs [1, 3] -> "1", "3"; a 10x10 of ones: runs [0, 100], and 100 =
+    # 3 * 32 + 4 takes two characters: 4 | 0x20 (more) -> chr(48 + 36) = "T", then 3 -> "3"
+    assert rle_encode(np.array([[0, 1], [1, 1]], bool))["counts"] == "13"
+    assert rle_encode(np.ones((10, 10), bool))["counts"] == "0T3"
+    assert _coco_rle_to_mask({"size": [10, 10], "counts": "0T3"}).all()
+    for mask in masks:                        # the format's definition, not roadtwin's own decoder
+        np.testing.assert_array_equal(_coco_rle_to_mask(rle_encode(mask)), mask)
     mask_api = pytest.importorskip("pycocotools.mask")
     for mask in masks:
         ref = mask_api.encode(np.asfortranarray(mask.astype(np.uint8)))
@@ -414,7 +443,7 @@ def test_coco_masks_decode_to_instance_maps(rendered):
 
         decode = mask_api.decode
     except ImportError:
-        decode = rle_decode
+        decode = _coco_rle_to_mask              # the format's definition, not roadtwin's decoder
     for a in coco["annotations"]:
         img = coco["images"][a["image_id"] - 1]
         inst = cv2.imread(str(out / meta["frames"][a["image_id"] - 1]["files"]["instance"]), cv2.IMREAD_UNCHANGED)

@@ -23,7 +23,7 @@ import triangle
 import roadtwin_defects
 import roadtwin_warp_render
 from roadtwin_core import ComposeRules, PluginManager, RoadSegment, RoadtwinError, TownLayout
-from roadtwin_core.cli_render import parse_views, run_render
+from roadtwin_core.apps.render import parse_views, run_render
 from roadtwin_core.render import Camera, Intrinsics, RenderMesh, look_from
 from roadtwin_core.render.cameras import RIG_PRESETS
 

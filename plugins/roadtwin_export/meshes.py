@@ -35,7 +35,7 @@ import numpy as np
 
 from roadtwin_core import RoadtwinError
 
-from ._atomic import atomic_files
+from roadtwin_core.atomic import atomic_files
 from ._stage import Look, Part, collect_parts, open_stage
 
 # Z-up -> Y-up for glTF, as a row-vector rotation: (x, y, z) -> (x, z, -y).

@@ -20,7 +20,7 @@ from pxr import Sdf, Tf, Usd, UsdGeom, UsdUtils
 
 from roadtwin_core import RoadtwinError
 
-from ._atomic import atomic_files
+from roadtwin_core.atomic import atomic_files
 from ._stage import open_stage, renderable_prims
 
 

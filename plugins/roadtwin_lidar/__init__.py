@@ -27,9 +27,6 @@ reads it back.
 """
 from __future__ import annotations
 
-import os
-import re
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -122,11 +119,6 @@ def _apply_masks(frames, names, masks, K, cam_from_lidar, who: str):
     return out
 
 
-def _safe_name(stem: str) -> str:
-    s = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "surface"
-    return s if s[0].isalpha() else f"s{s}"
-
-
 class LidarSurfaceReconstructor:
     name = "lidar_surface"
     description = "LiDAR frames + poses -> road surface mesh (RANSAC ground plane, trimmed Delaunay, robust elevation)"
@@ -180,7 +172,10 @@ class LidarSurfaceReconstructor:
         except RuntimeError as exc:  # open3d refuses extents its voxel grid cannot index
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise RoadtwinError(f"{source}: cannot build the surface ({first})") from None
-        stem = _safe_name(Path(names[0]).stem) if not isinstance(frames_in[0], np.ndarray) else "lidar"
+        from roadtwin_core.usd import safe_prim_name
+
+        stem = "lidar" if isinstance(frames_in[0], np.ndarray) else safe_prim_name(Path(names[0]).stem, empty="surface",
+                                                                                   lead="s")
         return LidarSurface(f"{stem}_surface", verts, faces, T, source,
                             {"reconstructor": self.name, "frames": len(frames), "points": int(len(pts)),
                              "voxel_m": p.voxel_m, "radius_m": p.radius_m})
@@ -200,13 +195,13 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
 
     from pxr import Gf, Sdf, UsdGeom, Vt
 
+    from roadtwin_core.atomic import atomic_files
+    from roadtwin_core.usd import safe_prim_name
     from roadtwin_core.usd.stage import apply_labels, new_stage, set_attrs, set_kind, write_mesh
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}{path.suffix}")
-    name = _safe_name(surface.name)
-    try:
+    name = safe_prim_name(surface.name, empty="surface", lead="s")
+    with atomic_files(path) as (tmp,):
         stage = new_stage(tmp, name, f"roadtwin surface asset: {name}")
         root = UsdGeom.Xform.Define(stage, f"/{name}").GetPrim()
         set_kind(root, "component")
@@ -224,10 +219,6 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
         UsdGeom.ModelAPI(root).SetExtentsHint(Vt.Vec3fArray([tuple(lo.tolist()), tuple(hi.tolist())]))
         stage.GetRootLayer().Save()
         del stage
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
     return path
 
 

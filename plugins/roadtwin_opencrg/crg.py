@@ -57,6 +57,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from roadtwin_core import RoadtwinError, SurfaceModel
+from roadtwin_core.atomic import atomic_write_bytes
 
 FORMATS = {"LRFI": ("text", 10, 8), "LDFI": ("text", 20, 4), "KRBI": ("bin", 4, 20), "KDBI": ("bin", 8, 10)}
 RECORD = 80
@@ -718,16 +719,7 @@ def write_crg(path: str | Path, crg: CRG, binary: bool = False, double: bool | N
     shipped files do); longer ones fall back to the most digits that fit (about 15 significant
     in LDFI), so text is exact for values with a short decimal form, binary KDBI always.
     """
-    path = Path(path)
-    data = crg_bytes(crg, binary, double)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_bytes(data)
-        tmp.replace(path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise RoadtwinError(f"{path}: cannot write ({exc.strerror or exc})") from None
-    return path
+    return atomic_write_bytes(path, crg_bytes(crg, binary, double), parents=False)   # as before: no folders made
 
 
 # ----------------------------------------------------------------------------------------- surface

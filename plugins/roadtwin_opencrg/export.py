@@ -14,10 +14,9 @@
    the resampled centerline chord, integrated from the first point (so :class:`CrgSurface` maps
    the written grid back to exactly the world points that were sampled).
 3. Heights: vertical rays at each grid point's world xy against the stage's collision mesh (road
-   with the defects baked in; :meth:`TownScene.collision_mesh`): triangles are bucketed in a 2D
-   grid, candidates tested with barycentric coordinates (a vertical ray's Möller–Trumbore test
-   reduces to that), the topmost hit wins. Heights are absolute world z (reference line
-   z = 0, no slope channel); a point no triangle covers is a missing (NaN) cell. On a curved
+   with the defects baked in; :meth:`TownScene.collision_mesh`), by
+   :class:`roadtwin_core.geometry.MeshHeights`: the topmost hit wins. Heights are absolute world
+   z (reference line z = 0, no slope channel); a point no triangle covers is a missing (NaN) cell. On a curved
    lane that happens at the first and last cross section: the CRG's normal there is the
    first/last chord's, while the segment's end edge is radial, so half the section lies a few
    centimetres outside the mesh.
@@ -31,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from roadtwin_core import RoadtwinError
+from roadtwin_core.geometry import MeshHeights
 from roadtwin_core.usd import load_town, read_layout
 
 from .crg import CRG, MAX_VALUES, CrgSurface, write_crg
@@ -88,60 +88,10 @@ def _resample(line: np.ndarray, du: float) -> np.ndarray:
 
 def drape(vertices: np.ndarray, faces: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """Topmost z of the mesh under each xy (vertical ray casting); NaN where nothing is hit."""
-    xy = np.asarray(xy, dtype=np.float64)
-    out = np.full(len(xy), np.nan)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     if len(faces) == 0 or len(xy) == 0:
-        return out
-    tri = vertices[faces]
-    lo, hi = xy.min(0) - 1e-6, xy.max(0) + 1e-6
-    tmin, tmax = tri[..., :2].min(1), tri[..., :2].max(1)
-    sel = np.all(tmax >= lo, axis=1) & np.all(tmin <= hi, axis=1)
-    tri, tmin, tmax = tri[sel], tmin[sel], tmax[sel]
-    if not len(tri):
-        return out
-    cell = max(float(np.median(np.max(tmax - tmin, axis=1))), 0.05)
-    org = lo
-    ci0 = np.floor((tmin - org) / cell).astype(np.int64)
-    ci1 = np.floor((tmax - org) / cell).astype(np.int64)
-    span = ci1 - ci0 + 1
-    ncol = int(np.floor((hi[0] - org[0]) / cell)) + 2
-    count = span[:, 0] * span[:, 1]
-    t_ids = np.repeat(np.arange(len(tri)), count)
-    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    w = np.repeat(span[:, 0], count)
-    cx = np.repeat(ci0[:, 0], count) + k % w
-    cy = np.repeat(ci0[:, 1], count) + k // w
-    keys = cy * ncol + cx
-    order = np.argsort(keys, kind="stable")
-    keys, t_ids = keys[order], t_ids[order]
-    pc = np.floor((xy - org) / cell).astype(np.int64)
-    pkey = pc[:, 1] * ncol + pc[:, 0]
-    a = np.searchsorted(keys, pkey, side="left")
-    b = np.searchsorted(keys, pkey, side="right")
-    n = b - a
-    p_ids = np.repeat(np.arange(len(xy)), n)
-    cand = t_ids[np.repeat(a, n) + (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))]
-    chunk = 2_000_000
-    for s in range(0, len(p_ids), chunk):
-        pi, ti = p_ids[s:s + chunk], cand[s:s + chunk]
-        t = tri[ti]
-        p = xy[pi]
-        v0, v1, v2 = t[:, 0, :2], t[:, 1, :2], t[:, 2, :2]
-        e1, e2, r = v1 - v0, v2 - v0, p - v0
-        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-        ok = np.abs(det) > 1e-14
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        bu = (r[:, 0] * e2[:, 1] - r[:, 1] * e2[:, 0]) * inv
-        bv = (e1[:, 0] * r[:, 1] - e1[:, 1] * r[:, 0]) * inv
-        tol = 1e-9
-        hit = ok & (bu >= -tol) & (bv >= -tol) & (bu + bv <= 1 + tol)
-        z = t[:, 0, 2] + bu * (t[:, 1, 2] - t[:, 0, 2]) + bv * (t[:, 2, 2] - t[:, 0, 2])
-        pi, z = pi[hit], z[hit]
-        top = np.full(len(xy), -np.inf)
-        np.maximum.at(top, pi, z)
-        got = np.isfinite(top)
-        out[got] = np.fmax(out[got], top[got])
-    return out
+        return np.full(len(xy), np.nan)
+    return MeshHeights(vertices, faces)(xy)
 
 
 def _half_width(seg) -> float:

@@ -103,7 +103,10 @@ class OpenDriveNetwork:
 
 
 def _safe(text: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_]", "_", text)
+    """An id piece made of prim-name characters (it may start with a digit: it is a suffix)."""
+    from roadtwin_core.usd import safe_prim_name  # pxr only when importing a map
+
+    return safe_prim_name(text, empty="", lead="")
 
 
 def _inner_id(lane_id: int) -> int:

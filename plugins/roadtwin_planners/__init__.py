@@ -2,9 +2,12 @@
 
 Each planner is one module with a small class: ``name``, ``description``, a ``Params``
 dataclass (bounds checked by roadtwin_core) and
-``plan(grid, start, goal, vehicle, collision, params, rng) -> (N, 3) poses or None``, where
+``plan(grid, start, goal, vehicle, collision, params, rng) -> PlannerOutput``, where
 ``grid`` is a :class:`roadtwin_core.grid.GridMap`, ``vehicle`` a
-:class:`roadtwin_core.planning.Vehicle` and ``collision`` "wheel" or "body". The returned path
+:class:`roadtwin_core.planning.Footprint` (``VehicleParams.footprint()``) and ``collision``
+"wheel" or "body". :class:`roadtwin_core.planning.PlannerOutput` carries the poses ((N, 3), or
+None when no path was found) and the call's statistics (expansions, tree size): planners keep no
+per-call state on themselves, since one instance serves every call and executors copy it. The returned path
 starts at the start pose and ends at the goal pose; every motion in it has been accepted by
 :class:`roadtwin_core.planning.CollisionChecker`, which the core's metrics use too. All planners
 are deterministic for a given rng seed.

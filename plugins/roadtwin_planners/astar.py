@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadtwin_core import RoadtwinError, field
-from roadtwin_core.planning import CollisionChecker, lane_headings, reference_path, wrap_angle
+from roadtwin_core.planning import CollisionChecker, PlannerOutput, lane_headings, reference_path, wrap_angle
 
 from ._search import Node, astar
 
@@ -150,10 +150,9 @@ class AStar:
             chain = np.array([[x, y, yaw], [x, y, psi], [goal[0], goal[1], psi], goal])
             return chain if checker.chains_free([chain])[0] else None
 
-        path, self.expansions = astar(Node((sx, sy, -1), start, 0.0), expand, heuristic, try_goal,
-                                      params.max_expansions)
-        self.maps_built = len(maps)
-        return path
+        path, expansions = astar(Node((sx, sy, -1), start, 0.0), expand, heuristic, try_goal,
+                                 params.max_expansions)
+        return PlannerOutput(path, {"expansions": expansions, "maps_built": len(maps)})
 
     def plan_lane(self, grid, start, goal, vehicle, collision, params):
         checker = CollisionChecker(grid, vehicle, collision)
@@ -218,8 +217,7 @@ class AStar:
             chain = np.array([[x, y, yaw], end, goal])
             return chain if checker.chains_free([chain])[0] else None
 
-        path, self.expansions = astar(Node((sx, sy), start, 0.0), expand, heuristic, try_goal,
-                                      params.max_expansions)
-        self.maps_built = len(maps)
-        return path
+        path, expansions = astar(Node((sx, sy), start, 0.0), expand, heuristic, try_goal,
+                                 params.max_expansions)
+        return PlannerOutput(path, {"expansions": expansions, "maps_built": len(maps)})
 

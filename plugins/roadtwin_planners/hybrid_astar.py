@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadtwin_core import field
-from roadtwin_core.planning import CollisionChecker, wrap_angle
+from roadtwin_core.planning import CollisionChecker, PlannerOutput, wrap_angle
 
 from ._search import Node, astar, heuristic_field
 
@@ -183,6 +183,6 @@ class HybridAStar:
                     return chain
             return None
 
-        path, self.expansions = astar(Node(key(start), start, 0.0), expand, heuristic, try_goal,
-                                      params.max_expansions)
-        return path
+        path, expansions = astar(Node(key(start), start, 0.0), expand, heuristic, try_goal,
+                                 params.max_expansions)
+        return PlannerOutput(path, {"expansions": expansions})

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadtwin_core import field
-from roadtwin_core.planning import CollisionChecker, transform, wrap_angle
+from roadtwin_core.planning import CollisionChecker, PlannerOutput, transform, wrap_angle
 
 from ._search import Node, astar, heuristic_field
 
@@ -124,8 +124,8 @@ class StateLattice:
             return chain if checker.chains_free([chain])[0] else None
 
         start_node = Node(key(start, 0), start, 0.0, extra=0)
-        path, self.expansions = astar(start_node, expand, heuristic, try_goal, params.max_expansions)
-        return path
+        path, expansions = astar(start_node, expand, heuristic, try_goal, params.max_expansions)
+        return PlannerOutput(path, {"expansions": expansions})
 
 
 def _arc(curve: np.ndarray) -> float:

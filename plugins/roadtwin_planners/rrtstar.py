@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadtwin_core import RoadtwinError, field
-from roadtwin_core.planning import CollisionChecker, reference_frame, reference_path, wrap_angle
+from roadtwin_core.planning import CollisionChecker, PlannerOutput, reference_frame, reference_path, wrap_angle
 
 from ._search import dedupe
 
@@ -165,7 +165,6 @@ class RRTStar:
                     cost[v] += delta
                     stack.extend(children[v])
 
-        self.tree_size = n
         # Cheapest collision-free connection to the exact goal pose.
         dg = np.sqrt(((xy[:n] - goal[:2]) ** 2).sum(axis=1))
         cands = np.flatnonzero(dg <= steer)
@@ -180,8 +179,9 @@ class RRTStar:
                 k = int(np.argmax(ok))
                 final = chains[k].copy()
                 final[-1] = goal
-                return self._path(int(batch[k]), final, xy, yaw, parent, start, edge)
-        return None
+                path = self._path(int(batch[k]), final, xy, yaw, parent, start, edge)
+                return PlannerOutput(path, {"tree_size": n})
+        return PlannerOutput(None, {"tree_size": n})
 
     @staticmethod
     def _path(last: int, final: np.ndarray, xy, yaw, parent, start, edge) -> np.ndarray:

@@ -1,6 +1,6 @@
 """The roadtwin vehicle as a Bullet multibody over a static concave triangle mesh.
 
-Standalone on purpose: numpy + pybullet only (``bench/sweep.py`` loads it by path). The roadtwin
+numpy + pybullet + roadtwin's path resampling (the one every backend drives along). The roadtwin
 plugin (``__init__.py``) adapts roadtwin's types to :class:`BulletVehicleSim`.
 
 The vehicle is the same mechanical system as the warp backend's (see its ``kernels.py``), built
@@ -33,9 +33,12 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 
 import numpy as np
 import pybullet as pb
+
+from roadtwin_core.vehicle import resample_path, resampled_path_at
 
 GRAVITY = 9.81
 MAX_RAYS = getattr(pb, "MAX_RAY_INTERSECTION_BATCH_SIZE", 16384)
@@ -45,6 +48,122 @@ KINEMATIC_FORCE = 1e9
 # pybullet's createCollisionShape(GEOM_MESH) takes at most 131072 vertices and 524288 indices
 MAX_MESH_VERTICES = 131072
 MAX_MESH_TRIANGLES = 524288 // 3
+
+
+# joint/link indices of the full vehicle's chain (see the module docs)
+PATH_JOINTS = [0, 1, 2]                     # prismatic x, prismatic y, revolute yaw: prescribed
+SUSPENSION_JOINTS = [6, 7, 8, 9]            # wheel links FL, FR, RL, RR
+BODY_AND_WHEEL_LINKS = [5, 6, 7, 8, 9]      # the body link, then the wheels
+POSE_FROM_JOINTS = [0, 1, 3, 5, 4, 2]       # x, y, heave, roll, pitch, yaw from the joint positions
+GZ = np.array([0.0, 0.0, GRAVITY])
+
+
+@dataclass
+class _Clock:
+    """Steps and IMU samples of a batch."""
+    dt: float
+    imu_every: int          # steps per IMU sample
+    nsteps: np.ndarray      # (n,) steps of each vehicle, whole IMU intervals
+    samples: int            # IMU samples of the longest vehicle
+    lost_limit: int         # steps a wheel may be off the road
+
+    @classmethod
+    def of(cls, vehicles: list[dict], dt: float, imu_rate_hz: float, lost_after_s: float) -> "_Clock":
+        imu_every = max(1, int(round(1.0 / (imu_rate_hz * dt))))
+        nsteps = np.array([int(round(v["duration"] / dt)) for v in vehicles])
+        nsteps = (nsteps // imu_every) * imu_every
+        return cls(dt, imu_every, nsteps, int(nsteps.max() // imu_every), int(round(lost_after_s / dt)))
+
+
+@dataclass
+class _TireRays:
+    """The contact sampling: ``nl`` slices, ``na`` arc rays over +-``arc`` rad, ``refine`` rounds."""
+    nl: int
+    na: int
+    arc: float
+    refine: int
+    step_a: float
+    alpha: np.ndarray       # (na,) ray angles
+    dirs_b: np.ndarray      # (na, 3) ray directions, body frame
+
+    @classmethod
+    def of(cls, slices: int, arc_samples: int, arc_deg: float, refine: int) -> "_TireRays":
+        arc = math.radians(arc_deg)
+        step_a = 2.0 * arc / (arc_samples - 1) if arc_samples > 1 else 0.0
+        alpha = -arc + step_a * np.arange(arc_samples)
+        dirs_b = np.stack([np.sin(alpha), np.zeros(arc_samples), -np.cos(alpha)], -1)
+        return cls(slices, arc_samples, arc, int(refine), step_a, alpha, dirs_b)
+
+
+@dataclass
+class _FullFleet:
+    """Per-vehicle constants of a batch of full vehicles as arrays ((n,) or (n, 4) per corner)."""
+    radius: np.ndarray
+    yoff: np.ndarray        # (n, nl) lateral offsets of the tire slices
+    kt: np.ndarray
+    ct: np.ndarray
+    ks: np.ndarray
+    cs: np.ndarray
+    smin: np.ndarray
+    smax: np.ndarray
+    sstat: np.ndarray
+    kstop: np.ndarray       # (n, 1)
+    cstop: np.ndarray       # (n, 1)
+    r_imu: np.ndarray       # (n, 3)
+
+    @classmethod
+    def of(cls, params: list[dict], nl: int) -> "_FullFleet":
+        def corner(key):
+            return np.array([[k[key] for k in p["corners"]] for p in params])
+
+        def body(key):
+            return np.array([p[key] for p in params])
+
+        width = body("width")
+        return cls(radius=body("radius"), yoff=((np.arange(nl) + 0.5) / nl - 0.5)[None, :] * width[:, None],
+                   kt=body("kt"), ct=body("ct"), ks=corner("ks"), cs=corner("cs"), smin=corner("s_min"),
+                   smax=corner("s_max"), sstat=corner("s_static"), kstop=body("k_stop")[:, None],
+                   cstop=body("c_stop")[:, None], r_imu=body("imu"))
+
+    def suspension_forces(self, act: np.ndarray, sj: np.ndarray, sdj: np.ndarray) -> np.ndarray:
+        """(A, 4) joint forces: spring + damper + the stops past the travel limits (never pulling)."""
+        smin, smax, kstop, cstop = self.smin[act], self.smax[act], self.kstop[act], self.cstop[act]
+        stop = np.where(sj > smax, np.maximum(kstop * (sj - smax) + cstop * sdj, 0.0),
+                        np.where(sj < smin, np.minimum(kstop * (sj - smin) + cstop * sdj, 0.0), 0.0))
+        return -(self.ks[act] * sj + self.cs[act] * sdj + stop)
+
+
+@dataclass
+class _FullState:
+    """What the stepping loop carries from step to step."""
+    dead: np.ndarray
+    lost: np.ndarray
+    steps: np.ndarray
+    vimu_prev: np.ndarray
+    acc_sum: np.ndarray
+    gyro_sum: np.ndarray
+    last_tire: dict = field(default_factory=dict)
+
+    @classmethod
+    def zeros(cls, n: int) -> "_FullState":
+        return cls(np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                   np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)))
+
+
+@dataclass
+class _Readback:
+    """States read back from Bullet for A vehicles."""
+    Rb: np.ndarray          # (A, 3, 3) body rotation
+    vb: np.ndarray          # (A, 3) body CG velocity (world)
+    omg: np.ndarray         # (A, 3) body angular velocity (world)
+    wpos: np.ndarray        # (A, 4, 3) wheel centres
+    wvel: np.ndarray        # (A, 4, 3) wheel velocities
+    q: np.ndarray           # (A, 10) joint positions
+    qdot: np.ndarray        # (A, 10) joint velocities
+
+    def subset(self, sel: np.ndarray) -> "_Readback":
+        return _Readback(self.Rb[sel], self.vb[sel], self.omg[sel], self.wpos[sel], self.wvel[sel], self.q[sel],
+                         self.qdot[sel])
 
 
 def _rot(phi, theta, psi) -> np.ndarray:
@@ -69,28 +188,6 @@ def _quat_to_mat(q) -> np.ndarray:
                      [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
 
 
-def resample_path(polyline: np.ndarray, ds: float = 0.5, heading_window_m: float = 2.0):
-    """Uniform-arclength resampling with a smoothed heading (straight 2-point paths stay exact)."""
-    pts = np.asarray(polyline, dtype=np.float64).reshape(-1, 2)
-    keep = np.concatenate([[True], np.linalg.norm(np.diff(pts, axis=0), axis=1) > 1e-9])
-    pts = pts[keep]
-    if len(pts) < 2:
-        raise ValueError("path needs at least two distinct points")
-    seg = np.diff(pts, axis=0)
-    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(seg, axis=1))])
-    if len(pts) == 2:
-        psi = math.atan2(seg[0, 1], seg[0, 0])
-        return pts.copy(), np.array([psi, psi]), float(cum[-1])
-    n = max(2, int(math.ceil(cum[-1] / ds)) + 1)
-    s = np.linspace(0.0, cum[-1], n)
-    xy = np.column_stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])])
-    half = max(1, int(round(heading_window_m / 2 / (s[1] - s[0]))))
-    lo = np.clip(np.arange(n) - half, 0, n - 1)
-    hi = np.clip(np.arange(n) + half, 0, n - 1)
-    d = xy[hi] - xy[lo]
-    return xy, np.unwrap(np.arctan2(d[:, 1], d[:, 0])), float(s[1] - s[0])
-
-
 def _set_dynamics(body: int, link: int, inertia: list[float], cid: int) -> None:
     """No damping anywhere, no joint speed cap, the given principal inertia.
 
@@ -111,14 +208,7 @@ class _Path:
 
     def at_many(self, t: np.ndarray) -> np.ndarray:
         """(T, 6) of :meth:`at` for many times at once."""
-        s = self.s0 + self.v * np.asarray(t, dtype=np.float64)
-        u = s / self.ds
-        k = np.clip(np.floor(u).astype(np.int64), 0, len(self.xy) - 2)
-        f = u - k
-        p = self.xy[k] + (self.xy[k + 1] - self.xy[k]) * f[:, None]
-        fc = np.clip(f, 0.0, 1.0)
-        psi = self.psi[k] + (self.psi[k + 1] - self.psi[k]) * fc
-        dpsi = np.where((f >= 0.0) & (f <= 1.0), (self.psi[k + 1] - self.psi[k]) / self.ds, 0.0)
+        p, psi, dpsi = resampled_path_at(self.xy, self.psi, self.ds, self.s0 + self.v * np.asarray(t, dtype=np.float64))
         return np.column_stack([p, psi, dpsi * self.v, self.v * np.cos(psi), self.v * np.sin(psi)])
 
     def at(self, t: float):
@@ -248,31 +338,26 @@ class BulletVehicleSim:
         pb.setGravity(0, 0, -GRAVITY, physicsClientId=c)
         pb.setTimeStep(dt, physicsClientId=c)
         pb.setPhysicsEngineParameter(numSubSteps=0, physicsClientId=c)
-        imu_every = max(1, int(round(1.0 / (imu_rate_hz * dt))))
-        nsteps = np.array([int(round(v["duration"] / dt)) for v in vehicles])
-        nsteps = (nsteps // imu_every) * imu_every
-        T = int(nsteps.max() // imu_every)
+        clock = _Clock.of(vehicles, dt, imu_rate_hz, lost_after_s)
         paths = [_Path(v["path"], v["s0"], v["speed"]) for v in vehicles]
         params = [v["params"] for v in vehicles]
         bodies = [self._build_full(p) if mode == "full" else self._build_quarter(p) for p in params]
-        out = {k: np.full((n, T, d), np.nan) for k, d in (("acc", 3), ("gyro", 3), ("pose", 6), ("wheel_z", 4),
-                                                           ("tire_f", 4), ("susp", 4))}
+        out = {k: np.full((n, clock.samples, d), np.nan) for k, d in (("acc", 3), ("gyro", 3), ("pose", 6),
+                                                                       ("wheel_z", 4), ("tire_f", 4), ("susp", 4))}
         try:
             if mode == "full":
-                wall = self._run_full(bodies, params, paths, nsteps, dt, imu_every, tire_slices, tire_arc_samples,
-                                      math.radians(tire_arc_deg), int(tire_refine), int(round(lost_after_s / dt)),
-                                      initial_state, out)
+                rays = _TireRays.of(tire_slices, tire_arc_samples, tire_arc_deg, tire_refine)
+                wall, dead, steps = self._run_full(bodies, params, paths, clock, rays, initial_state, out)
             else:
-                wall = self._run_quarter(bodies, params, paths, nsteps, dt, imu_every, int(round(lost_after_s / dt)),
-                                         initial_state, out)
+                wall, dead, steps = self._run_quarter(bodies, params, paths, clock, initial_state, out)
         finally:
             for b in bodies:
                 pb.removeBody(b, physicsClientId=c)
-        dead = out.pop("_dead")
-        steps = out.pop("_steps")
-        out.update({"t": (np.arange(T) + 1) * imu_every * dt, "valid": (nsteps // imu_every).astype(np.int64),
-                    "dead": dead, "steps": steps, "wall_s": wall, "bvh_s": self.build_s,
-                    "sim_s": float((nsteps * dt).sum()), "imu_dt": imu_every * dt, "dt": dt, "mode": mode})
+        nsteps, imu_every = clock.nsteps, clock.imu_every
+        out.update({"t": (np.arange(clock.samples) + 1) * imu_every * dt,
+                    "valid": (nsteps // imu_every).astype(np.int64), "dead": dead, "steps": steps, "wall_s": wall,
+                    "bvh_s": self.build_s, "sim_s": float((nsteps * dt).sum()), "imu_dt": imu_every * dt, "dt": dt,
+                    "mode": mode})
         return out
 
     def _static_pose(self, p: dict, path: _Path):
@@ -294,20 +379,50 @@ class BulletVehicleSim:
         phi = math.atan(0.5 * ((h[0] - h[1]) / tf + (h[2] - h[3]) / tr))
         return ok, hcg + p["cg_height"], phi, theta
 
-    def _run_full(self, bodies, params, paths, nsteps, dt, imu_every, nl, na, arc, refine, lost_limit, initial_state,
-                  out):
-        c = self.cid
+    # ------------------------------------------------------------------ full vehicle
+    def _run_full(self, bodies, params, paths, clock: "_Clock", rays: "_TireRays", initial_state, out):
+        """Step every vehicle until its own end: read the states back, record the IMU, resolve
+        the tire patches and the suspension forces, apply them, step Bullet."""
         n = len(bodies)
-        dead = np.zeros(n, dtype=bool)
-        lost = np.zeros(n, dtype=np.int64)
-        steps = np.zeros(n, dtype=np.int64)
-        step_a = 2.0 * arc / (na - 1) if na > 1 else 0.0
-        alpha = -arc + step_a * np.arange(na)
-        dirs_b = np.stack([np.sin(alpha), np.zeros(na), -np.cos(alpha)], -1)          # (na, 3) body frame
-        init = initial_state or {}
+        nsteps, dt = clock.nsteps, clock.dt
         max_steps = int(nsteps.max())
         # the prescribed motion of every vehicle at every step: x, y, yaw, yaw rate, xdot, ydot
         presc = np.stack([path.at_many(np.arange(max_steps + 1) * dt) for path in paths])
+        fleet = _FullFleet.of(params, rays.nl)
+        st = _FullState.zeros(n)
+        st.dead[:] = self._reset_full(bodies, params, paths, presc, initial_state)
+        t_start = time.perf_counter()
+        for k in range(max_steps + 1):
+            # read back every vehicle still running or that has just made its last step
+            steps = st.steps
+            live = np.flatnonzero(~st.dead & (steps <= nsteps) & ((steps < nsteps) | (steps == k)))
+            if len(live) == 0:
+                break
+            rb = self._read_full(bodies, live)
+            self._record_full(st, fleet, live, rb, k, clock, out)
+            run = st.steps[live] < nsteps[live]
+            if not run.any():
+                break
+            sel = np.flatnonzero(run)
+            act = live[sel]
+            rb = rb.subset(sel)
+            force, centres, f = self._tire_forces(fleet, act, rb, rays)
+            spring = fleet.suspension_forces(act, rb.q[:, 6:10], rb.qdot[:, 6:10])
+            tire_tot = f.sum(-1)
+            st.last_tire = {i: tire_tot[a] for a, i in enumerate(act)}
+            nowheel = (tire_tot <= 0.0).any(axis=1)
+            st.lost[act] = np.where(nowheel, st.lost[act] + 1, 0)
+            self._apply_full(bodies, act, presc, k, spring, force, centres, f > 0.0, rays.nl)
+            st.dead[act] |= st.lost[act] > clock.lost_limit
+            pb.stepSimulation(physicsClientId=self.cid)
+            st.steps[act] += 1
+        return time.perf_counter() - t_start, st.dead, st.steps
+
+    def _reset_full(self, bodies, params, paths, presc, initial_state) -> np.ndarray:
+        """Every joint at the static pose over the road (or the given initial state); returns
+        which vehicles have no road under a wheel."""
+        init = initial_state or {}
+        dead = np.zeros(len(bodies), dtype=bool)
         for i, (b, p, path) in enumerate(zip(bodies, params, paths)):
             ok, z, phi, theta = self._static_pose(p, path)
             dead[i] = not ok
@@ -322,156 +437,131 @@ class BulletVehicleSim:
             x, y, psi, wz, vx, vy = presc[i, 0]
             for j, (pos, vel) in enumerate(zip([x, y, psi, z, theta, phi] + list(s),
                                                [vx, vy, wz, qd[0], qd[2], qd[1]] + list(sd))):
-                pb.resetJointState(b, j, float(pos), float(vel), physicsClientId=c)
-        width = np.array([p["width"] for p in params])
-        radius = np.array([p["radius"] for p in params])
-        yoff = ((np.arange(nl) + 0.5) / nl - 0.5)[None, :] * width[:, None]             # (n, nl)
-        kt = np.array([p["kt"] for p in params])
-        ctire = np.array([p["ct"] for p in params])
-        ks = np.array([[k["ks"] for k in p["corners"]] for p in params])
-        cs = np.array([[k["cs"] for k in p["corners"]] for p in params])
-        smin = np.array([[k["s_min"] for k in p["corners"]] for p in params])
-        smax = np.array([[k["s_max"] for k in p["corners"]] for p in params])
-        sstat = np.array([[k["s_static"] for k in p["corners"]] for p in params])
-        kstop = np.array([p["k_stop"] for p in params])[:, None]
-        cstop = np.array([p["c_stop"] for p in params])[:, None]
-        r_imu = np.array([p["imu"] for p in params])
-        gz = np.array([0.0, 0.0, GRAVITY])
-        vimu_prev = np.zeros((n, 3))
-        acc_sum = np.zeros((n, 3))
-        gyro_sum = np.zeros((n, 3))
-        links = [5, 6, 7, 8, 9]
-        t_start = time.perf_counter()
-        for k in range(max_steps + 1):
-            # read back every vehicle still running or that has just made its last step
-            live = np.flatnonzero(~dead & (steps <= nsteps) & ((steps < nsteps) | (steps == k)))
-            if len(live) == 0:
-                break
-            A = len(live)
-            Rb = np.empty((A, 3, 3))
-            vb = np.empty((A, 3))
-            omg = np.empty((A, 3))
-            wpos = np.empty((A, 4, 3))
-            wvel = np.empty((A, 4, 3))
-            q = np.empty((A, 10))
-            qdot = np.empty((A, 10))
-            for a, i in enumerate(live):
-                ls = pb.getLinkStates(bodies[i], links, computeLinkVelocity=1, computeForwardKinematics=1,
-                                      physicsClientId=c)
-                Rb[a] = _quat_to_mat(ls[0][5])
-                vb[a] = ls[0][6]
-                omg[a] = ls[0][7]
-                wpos[a] = [l_[4] for l_ in ls[1:]]
-                wvel[a] = [l_[6] for l_ in ls[1:]]
-                js = pb.getJointStates(bodies[i], range(10), physicsClientId=c)
-                q[a] = [j_[0] for j_ in js]
-                qdot[a] = [j_[1] for j_ in js]
-            # IMU: finite difference of the IMU point's velocity, into the body frame
-            vimu = vb + _cross(omg, np.einsum("aij,aj->ai", Rb, r_imu[live]))
-            if k > 0:
-                stepped = steps[live] > 0
-                li = live[stepped]
-                acc_sum[li] += np.einsum("aji,aj->ai", Rb[stepped], (vimu[stepped] - vimu_prev[li]) / dt + gz)
-                gyro_sum[li] += np.einsum("aji,aj->ai", Rb[stepped], omg[stepped])
-                due = stepped & (steps[live] % imu_every == 0)
-                for a in np.flatnonzero(due):
-                    i = live[a]
-                    kk = steps[i] // imu_every - 1
-                    out["acc"][i, kk] = acc_sum[i] / imu_every
-                    out["gyro"][i, kk] = gyro_sum[i] / imu_every
-                    acc_sum[i] = 0.0
-                    gyro_sum[i] = 0.0
-                    out["pose"][i, kk] = q[a, [0, 1, 3, 5, 4, 2]]
-                    out["wheel_z"][i, kk] = wpos[a, :, 2]
-                    out["tire_f"][i, kk] = last_tire[i]
-                    out["susp"][i, kk] = q[a, 6:10] - sstat[i]
-            vimu_prev[live] = vimu
-            run = steps[live] < nsteps[live]
-            if not run.any():
-                break
-            sel = np.flatnonzero(run)
-            act = live[sel]
-            A = len(act)
-            Rb, wpos, wvel, omg = Rb[sel], wpos[sel], wvel[sel], omg[sel]
-            sj, sdj = q[sel, 6:10], qdot[sel, 6:10]
-            # contact patch rays
-            lat = Rb[:, :, 1]
-            dirs = np.einsum("aij,kj->aki", Rb, dirs_b)                                  # (A, na, 3)
-            centres = wpos[:, :, None, :] + lat[:, None, None, :] * yoff[act][:, None, :, None]  # (A,4,nl,3)
-            starts = np.broadcast_to(centres[:, :, :, None, :], (A, 4, nl, na, 3))
-            ends = starts + dirs[:, None, None, :, :] * radius[act][:, None, None, None, None]
-            frac = self._raycast(starts.reshape(-1, 3), ends.reshape(-1, 3)).reshape(A, 4, nl, na)
-            pen = (1.0 - frac) * radius[act][:, None, None, None]
-            best = pen.argmax(axis=-1)                                                    # (A,4,nl)
-            depth = np.take_along_axis(pen, best[..., None], -1)[..., 0]
-            # bisection rounds around the deepest ray (as the warp backend: two rays a round)
-            alpha_s = alpha[best]
-            has = depth > 0.0
-            h = 0.5 * step_a
-            rad3 = np.broadcast_to(radius[act][:, None, None], depth.shape)
-            for _ in range(refine):
-                if h > 0.0 and has.any():
-                    idx = np.nonzero(has)
-                    a_lo = np.maximum(alpha_s[idx] - h, -arc)
-                    a_hi = np.minimum(alpha_s[idx] + h, arc)
-                    Rsel = Rb[idx[0]]
-                    o = centres[idx]
-                    dl = np.einsum("aij,aj->ai", Rsel, np.stack([np.sin(a_lo), 0 * a_lo, -np.cos(a_lo)], -1))
-                    dh = np.einsum("aij,aj->ai", Rsel, np.stack([np.sin(a_hi), 0 * a_hi, -np.cos(a_hi)], -1))
-                    rr = rad3[idx][:, None]
-                    fr = self._raycast(np.concatenate([o, o]), np.concatenate([o + dl * rr, o + dh * rr]))
-                    p_lo = (1.0 - fr[: len(o)]) * rr[:, 0]
-                    p_hi = (1.0 - fr[len(o):]) * rr[:, 0]
-                    dep, al = depth[idx], alpha_s[idx]
-                    up = p_lo > dep
-                    dep, al = np.where(up, p_lo, dep), np.where(up, a_lo, al)
-                    up = p_hi > dep
-                    dep, al = np.where(up, p_hi, dep), np.where(up, a_hi, al)
-                    depth[idx], alpha_s[idx] = dep, al
-                h *= 0.5
-            d = np.einsum("aij,awlj->awli", Rb, np.stack([np.sin(alpha_s), 0 * alpha_s, -np.cos(alpha_s)], -1))
-            vs = wvel[:, :, None, :] + _cross(np.broadcast_to(omg[:, None, None, :], centres.shape),
-                                              centres - wpos[:, :, None, :])
-            rate = (vs * d).sum(-1)
-            f = np.where(depth > 0, np.maximum((kt[act, None, None] * depth + ctire[act, None, None] * rate) / nl,
-                                               0.0), 0.0)
-            force = (-d * f[..., None]).tolist()
-            cl = centres.tolist()
-            stop = np.where(sj > smax[act], np.maximum(kstop[act] * (sj - smax[act]) + cstop[act] * sdj, 0.0),
-                            np.where(sj < smin[act], np.minimum(kstop[act] * (sj - smin[act]) + cstop[act] * sdj,
-                                                                0.0), 0.0))
-            spring = (-(ks[act] * sj + cs[act] * sdj + stop)).tolist()
-            tire_tot = f.sum(-1)
-            last_tire = {i: tire_tot[a] for a, i in enumerate(act)}
-            contact = f > 0.0
-            nowheel = (tire_tot <= 0.0).any(axis=1)
-            lost[act] = np.where(nowheel, lost[act] + 1, 0)
-            x0, y0, psi0, wz0, vx0, vy0 = presc[act, k].T
-            vx1, vy1, wz1 = presc[act, k + 1, 4], presc[act, k + 1, 5], presc[act, k + 1, 3]
-            kin_q = np.column_stack([x0, y0, psi0])[:, :, None].tolist()
-            kin_v = np.column_stack([vx0, vy0, wz0])[:, :, None].tolist()
-            kin_v1 = np.column_stack([vx1, vy1, wz1]).tolist()
-            for a, i in enumerate(act):
-                b = bodies[i]
-                pb.resetJointStatesMultiDof(b, [0, 1, 2], kin_q[a], kin_v[a], physicsClientId=c)
-                pb.setJointMotorControlArray(b, [0, 1, 2], pb.VELOCITY_CONTROL, targetVelocities=kin_v1[a],
-                                             forces=[KINEMATIC_FORCE] * 3, physicsClientId=c)
-                pb.setJointMotorControlArray(b, [6, 7, 8, 9], pb.TORQUE_CONTROL, forces=spring[a], physicsClientId=c)
-                fa, ca, con = force[a], cl[a], contact[a]
-                for w in range(4):
-                    for sl in range(nl):
-                        if con[w, sl]:
-                            pb.applyExternalForce(b, 6 + w, fa[w][sl], ca[w][sl], pb.WORLD_FRAME, physicsClientId=c)
-            dead[act] |= lost[act] > lost_limit
-            pb.stepSimulation(physicsClientId=c)
-            steps[act] += 1
-        wall = time.perf_counter() - t_start
-        out["_dead"] = dead
-        out["_steps"] = steps
-        return wall
+                pb.resetJointState(b, j, float(pos), float(vel), physicsClientId=self.cid)
+        return dead
 
-    def _run_quarter(self, bodies, params, paths, nsteps, dt, imu_every, lost_limit, initial_state, out):
+    def _read_full(self, bodies, live: np.ndarray) -> "_Readback":
+        """Body rotation, velocities, wheel positions/velocities and joint states of ``live``."""
         c = self.cid
+        A = len(live)
+        rb = _Readback(Rb=np.empty((A, 3, 3)), vb=np.empty((A, 3)), omg=np.empty((A, 3)), wpos=np.empty((A, 4, 3)),
+                       wvel=np.empty((A, 4, 3)), q=np.empty((A, 10)), qdot=np.empty((A, 10)))
+        for a, i in enumerate(live):
+            ls = pb.getLinkStates(bodies[i], BODY_AND_WHEEL_LINKS, computeLinkVelocity=1, computeForwardKinematics=1,
+                                  physicsClientId=c)
+            rb.Rb[a] = _quat_to_mat(ls[0][5])
+            rb.vb[a] = ls[0][6]
+            rb.omg[a] = ls[0][7]
+            rb.wpos[a] = [l_[4] for l_ in ls[1:]]
+            rb.wvel[a] = [l_[6] for l_ in ls[1:]]
+            js = pb.getJointStates(bodies[i], range(10), physicsClientId=c)
+            rb.q[a] = [j_[0] for j_ in js]
+            rb.qdot[a] = [j_[1] for j_ in js]
+        return rb
+
+    @staticmethod
+    def _record_full(st: "_FullState", fleet: "_FullFleet", live, rb: "_Readback", k: int, clock: "_Clock",
+                     out: dict) -> None:
+        """IMU: finite difference of the IMU point's velocity, into the body frame; an output
+        sample at the end of each IMU interval."""
+        dt, imu_every = clock.dt, clock.imu_every
+        vimu = rb.vb + _cross(rb.omg, np.einsum("aij,aj->ai", rb.Rb, fleet.r_imu[live]))
+        if k > 0:
+            stepped = st.steps[live] > 0
+            li = live[stepped]
+            st.acc_sum[li] += np.einsum("aji,aj->ai", rb.Rb[stepped], (vimu[stepped] - st.vimu_prev[li]) / dt + GZ)
+            st.gyro_sum[li] += np.einsum("aji,aj->ai", rb.Rb[stepped], rb.omg[stepped])
+            due = stepped & (st.steps[live] % imu_every == 0)
+            for a in np.flatnonzero(due):
+                i = live[a]
+                kk = st.steps[i] // imu_every - 1
+                out["acc"][i, kk] = st.acc_sum[i] / imu_every
+                out["gyro"][i, kk] = st.gyro_sum[i] / imu_every
+                st.acc_sum[i] = 0.0
+                st.gyro_sum[i] = 0.0
+                out["pose"][i, kk] = rb.q[a, POSE_FROM_JOINTS]
+                out["wheel_z"][i, kk] = rb.wpos[a, :, 2]
+                out["tire_f"][i, kk] = st.last_tire[i]
+                out["susp"][i, kk] = rb.q[a, 6:10] - fleet.sstat[i]
+        st.vimu_prev[live] = vimu
+
+    def _tire_forces(self, fleet: "_FullFleet", act, rb: "_Readback", rays: "_TireRays"):
+        """Each tire slice's radial spring-damper force (world frame) from its deepest arc ray,
+        refined by bisection rounds as the warp backend does; returns (forces (A,4,nl,3) as
+        lists, slice centres (A,4,nl,3) as lists, force magnitudes (A,4,nl))."""
+        nl, na, arc = rays.nl, rays.na, rays.arc
+        A = len(act)
+        Rb, wpos, wvel, omg = rb.Rb, rb.wpos, rb.wvel, rb.omg
+        radius = fleet.radius[act]
+        lat = Rb[:, :, 1]
+        dirs = np.einsum("aij,kj->aki", Rb, rays.dirs_b)                                   # (A, na, 3)
+        centres = wpos[:, :, None, :] + lat[:, None, None, :] * fleet.yoff[act][:, None, :, None]  # (A,4,nl,3)
+        starts = np.broadcast_to(centres[:, :, :, None, :], (A, 4, nl, na, 3))
+        ends = starts + dirs[:, None, None, :, :] * radius[:, None, None, None, None]
+        frac = self._raycast(starts.reshape(-1, 3), ends.reshape(-1, 3)).reshape(A, 4, nl, na)
+        pen = (1.0 - frac) * radius[:, None, None, None]
+        best = pen.argmax(axis=-1)                                                         # (A,4,nl)
+        depth = np.take_along_axis(pen, best[..., None], -1)[..., 0]
+        # bisection rounds around the deepest ray (as the warp backend: two rays a round)
+        alpha_s = rays.alpha[best]
+        has = depth > 0.0
+        h = 0.5 * rays.step_a
+        rad3 = np.broadcast_to(radius[:, None, None], depth.shape)
+        for _ in range(rays.refine):
+            if h > 0.0 and has.any():
+                idx = np.nonzero(has)
+                a_lo = np.maximum(alpha_s[idx] - h, -arc)
+                a_hi = np.minimum(alpha_s[idx] + h, arc)
+                Rsel = Rb[idx[0]]
+                o = centres[idx]
+                dl = np.einsum("aij,aj->ai", Rsel, np.stack([np.sin(a_lo), 0 * a_lo, -np.cos(a_lo)], -1))
+                dh = np.einsum("aij,aj->ai", Rsel, np.stack([np.sin(a_hi), 0 * a_hi, -np.cos(a_hi)], -1))
+                rr = rad3[idx][:, None]
+                fr = self._raycast(np.concatenate([o, o]), np.concatenate([o + dl * rr, o + dh * rr]))
+                p_lo = (1.0 - fr[: len(o)]) * rr[:, 0]
+                p_hi = (1.0 - fr[len(o):]) * rr[:, 0]
+                dep, al = depth[idx], alpha_s[idx]
+                up = p_lo > dep
+                dep, al = np.where(up, p_lo, dep), np.where(up, a_lo, al)
+                up = p_hi > dep
+                dep, al = np.where(up, p_hi, dep), np.where(up, a_hi, al)
+                depth[idx], alpha_s[idx] = dep, al
+            h *= 0.5
+        d = np.einsum("aij,awlj->awli", Rb, np.stack([np.sin(alpha_s), 0 * alpha_s, -np.cos(alpha_s)], -1))
+        vs = wvel[:, :, None, :] + _cross(np.broadcast_to(omg[:, None, None, :], centres.shape),
+                                          centres - wpos[:, :, None, :])
+        rate = (vs * d).sum(-1)
+        f = np.where(depth > 0, np.maximum((fleet.kt[act, None, None] * depth + fleet.ct[act, None, None] * rate) / nl,
+                                           0.0), 0.0)
+        return (-d * f[..., None]).tolist(), centres.tolist(), f
+
+    def _apply_full(self, bodies, act, presc, k: int, spring, force, centres, contact, nl: int) -> None:
+        """Hold x, y, yaw on the path for this step, drive the suspension joints, push the
+        wheels with the tire slices that touch the road."""
+        c = self.cid
+        x0, y0, psi0, wz0, vx0, vy0 = presc[act, k].T
+        vx1, vy1, wz1 = presc[act, k + 1, 4], presc[act, k + 1, 5], presc[act, k + 1, 3]
+        kin_q = np.column_stack([x0, y0, psi0])[:, :, None].tolist()
+        kin_v = np.column_stack([vx0, vy0, wz0])[:, :, None].tolist()
+        kin_v1 = np.column_stack([vx1, vy1, wz1]).tolist()
+        spring = spring.tolist()
+        for a, i in enumerate(act):
+            b = bodies[i]
+            pb.resetJointStatesMultiDof(b, PATH_JOINTS, kin_q[a], kin_v[a], physicsClientId=c)
+            pb.setJointMotorControlArray(b, PATH_JOINTS, pb.VELOCITY_CONTROL, targetVelocities=kin_v1[a],
+                                         forces=[KINEMATIC_FORCE] * 3, physicsClientId=c)
+            pb.setJointMotorControlArray(b, SUSPENSION_JOINTS, pb.TORQUE_CONTROL, forces=spring[a], physicsClientId=c)
+            fa, ca, con = force[a], centres[a], contact[a]
+            for w in range(4):
+                for sl in range(nl):
+                    if con[w, sl]:
+                        pb.applyExternalForce(b, SUSPENSION_JOINTS[w], fa[w][sl], ca[w][sl], pb.WORLD_FRAME,
+                                              physicsClientId=c)
+
+    # ------------------------------------------------------------------ quarter car
+    def _run_quarter(self, bodies, params, paths, clock: _Clock, initial_state, out):
+        c = self.cid
+        nsteps, dt, imu_every, lost_limit = clock.nsteps, clock.dt, clock.imu_every, clock.lost_limit
         n = len(bodies)
         dead = np.zeros(n, dtype=bool)
         lost = np.zeros(n, dtype=np.int64)
@@ -545,7 +635,4 @@ class BulletVehicleSim:
                     out["wheel_z"][i, kk] = [zw, 0.0, 0.0, 0.0]
                     out["tire_f"][i, kk] = [last_ft[i], 0.0, 0.0, 0.0]
                     out["susp"][i, kk] = [q[3] - params[i]["s_static"], 0.0, 0.0, 0.0]
-        wall = time.perf_counter() - t_start
-        out["_dead"] = dead
-        out["_steps"] = steps
-        return wall
+        return time.perf_counter() - t_start, dead, steps

@@ -21,7 +21,6 @@ out, since a transformed, normalised map has lost the disparity units needed for
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -112,11 +111,6 @@ def _K(k: Any) -> np.ndarray:
     return a.reshape(3, 3)
 
 
-def _safe_name(stem: str) -> str:
-    s = re.sub(r"[^A-Za-z0-9_]", "_", stem) or "frame"
-    return s if s[0].isalpha() else f"f{s}"
-
-
 class StereoDefects:
     name = "stereo_defects"
     description = "stereo pair or disparity map -> pothole defect models (Fan et al. disparity transformation)"
@@ -174,7 +168,9 @@ class StereoDefects:
         models: list[DefectModel] = []
         instances: list[DefectInstance] = []
         if not transformed_in:
-            stem = _safe_name(Path(source).stem if source != "array" else "stereo")
+            from roadtwin_core.usd import safe_prim_name
+
+            stem = safe_prim_name(Path(source).stem if source != "array" else "stereo", empty="frame", lead="f")
             for i in range(1, int(labels.max()) + 1):
                 try:
                     inst = reconstruct_instance(labels == i, disp, K, float(baseline), grid_m=p.grid_m)

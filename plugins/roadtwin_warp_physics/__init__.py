@@ -1,7 +1,7 @@
 """Physics backend ``warp``: N vehicles per launch over the road collision mesh, CPU or CUDA.
 
-The kernels live in ``kernels.py`` (numpy + warp only, loadable by file path for benchmarks on
-machines without roadtwin); this module adapts roadtwin's vehicle types to them. Registered
+The kernels live in ``kernels.py`` (numpy + warp + roadtwin's path resampling); this module
+adapts roadtwin's vehicle types to them. Registered
 through the ``roadtwin`` entry-point group as ``warp_physics = "roadtwin_warp_physics"``.
 """
 from __future__ import annotations

@@ -1,8 +1,7 @@
 """Tire-level vehicle dynamics on warp: N vehicles per launch over one road triangle mesh.
 
-Standalone on purpose: this file imports numpy and warp only, so ``bench/sweep.py`` can load it
-by path on a GPU machine that has neither USD nor pybullet nor roadtwin. The roadtwin plugin
-(``__init__.py``) adapts roadtwin's types to :class:`VehicleSim`.
+numpy + warp + roadtwin's path resampling (the one every backend drives along). The roadtwin
+plugin (``__init__.py``) adapts roadtwin's types to :class:`VehicleSim`.
 
 Model (the same as the pybullet backend's; see ``roadtwin_core/vehicle/vehicle.py`` for the
 parameters):
@@ -54,22 +53,19 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import warp as wp
 
+from roadtwin_core.vehicle import resample_path, resampled_path_at
+
 GRAVITY = 9.81
 
-# Packed parameter row of a full vehicle (float32): body, tire, then 4 corners of 8.
-P_MB, P_IXX, P_IYY, P_IZZ, P_MU, P_R, P_W, P_KT, P_CT, P_KSTOP, P_CSTOP, P_IMUX, P_IMUY, P_IMUZ, P_CGH = range(15)
-P_CORNER0, P_CSTRIDE = 16, 8
-C_X, C_Y, C_EFREE, C_KS, C_CS, C_SMIN, C_SMAX, C_SSTAT = range(8)
-NP = P_CORNER0 + 4 * P_CSTRIDE
-# Quarter car row.
-Q_MS, Q_MU, Q_KS, Q_CS, Q_KT, Q_CT, Q_R, Q_EFREE, Q_SSTAT = range(9)
-
-_P = {k: wp.constant(v) for k, v in dict(
-    MB=P_MB, IXX=P_IXX, IYY=P_IYY, IZZ=P_IZZ, MU=P_MU, R=P_R, W=P_W, KT=P_KT, CT=P_CT, KSTOP=P_KSTOP,
-    CSTOP=P_CSTOP, IMUX=P_IMUX, IMUY=P_IMUY, IMUZ=P_IMUZ, CGH=P_CGH, C0=P_CORNER0, CS=P_CSTRIDE).items()}
-PMB, PIXX, PIYY, PIZZ, PMU, PR, PW, PKT, PCT = (_P[k] for k in ("MB", "IXX", "IYY", "IZZ", "MU", "R", "W", "KT", "CT"))
-PKSTOP, PCSTOP, PIMUX, PIMUY, PIMUZ, PCGH, PC0, PCSTRIDE = (_P[k] for k in ("KSTOP", "CSTOP", "IMUX", "IMUY", "IMUZ",
-                                                                          "CGH", "C0", "CS"))
+# Packed parameter row of a full vehicle (float32): body and tire fields, then 4 corners
+# (FL, FR, RL, RR) of CORNER_FIELDS each; the kernels read every field by these names.
+MB, IXX, IYY, IZZ, MU, RADIUS, WIDTH, KT, CT, KSTOP, CSTOP, IMUX, IMUY, IMUZ, CGH = (wp.constant(k) for k in range(15))
+CORNER0, CORNER_FIELDS = wp.constant(16), wp.constant(8)
+# a corner's fields, relative to its base (corner_base)
+CX, CY, CEFREE, CKS, CCS, CSMIN, CSMAX, CSSTAT = (wp.constant(k) for k in range(8))
+NP = CORNER0 + 4 * CORNER_FIELDS
+# Packed parameter row of a quarter car.
+QMS, QMU, QKS, QCS, QKT, QCT, QR, QEFREE, QSSTAT = (wp.constant(k) for k in range(9))
 GRAV = wp.constant(GRAVITY)
 
 # Compile time (issue #12): nothing here is differentiated, so no backward pass (it more than
@@ -97,17 +93,18 @@ def pack_vehicle(p: dict) -> np.ndarray:
     """Plain vehicle dict (``VehicleParams.to_plain()``) -> packed float row."""
     row = np.zeros(NP, dtype=np.float64)
     if p.get("mode", "full") == "quarter":
-        row[[Q_MS, Q_MU, Q_KS, Q_CS, Q_KT, Q_CT, Q_R, Q_EFREE, Q_SSTAT]] = [
+        row[[QMS, QMU, QKS, QCS, QKT, QCT, QR, QEFREE, QSSTAT]] = [
             p["m_s"], p["m_u"], p["ks"], p["cs"], p["kt"], p["ct"], p["radius"], p["e_free"], p["s_static"]]
         return row
-    row[[P_MB, P_IXX, P_IYY, P_IZZ, P_MU, P_R, P_W, P_KT, P_CT, P_KSTOP, P_CSTOP]] = [
+    row[[MB, IXX, IYY, IZZ, MU, RADIUS, WIDTH, KT, CT, KSTOP, CSTOP]] = [
         p["m_b"], p["ixx"], p["iyy"], p["izz"], p["m_u"], p["radius"], p["width"], p["kt"], p["ct"],
         p["k_stop"], p["c_stop"]]
-    row[[P_IMUX, P_IMUY, P_IMUZ]] = p["imu"]
-    row[P_CGH] = p["cg_height"]
+    row[[IMUX, IMUY, IMUZ]] = p["imu"]
+    row[CGH] = p["cg_height"]
     for i, c in enumerate(p["corners"]):
-        b = P_CORNER0 + i * P_CSTRIDE
-        row[b:b + 8] = [c["x"], c["y"], c["e_free"], c["ks"], c["cs"], c["s_min"], c["s_max"], c["s_static"]]
+        b = CORNER0 + i * CORNER_FIELDS
+        row[[b + CX, b + CY, b + CEFREE, b + CKS, b + CCS, b + CSMIN, b + CSMAX, b + CSSTAT]] = [
+            c["x"], c["y"], c["e_free"], c["ks"], c["cs"], c["s_min"], c["s_max"], c["s_static"]]
     return row
 
 
@@ -207,7 +204,27 @@ def euler_rot(phi: float, theta: float, psi: float):
 
 @wp.func
 def corner_base(c: int):
-    return PC0 + c * PCSTRIDE
+    return CORNER0 + c * CORNER_FIELDS
+
+
+@wp.func
+def wheel_mount(fl: Fleet, pi: int, c: int, compression: float):
+    """Wheel c's centre in the body frame at a suspension compression."""
+    b = corner_base(c)
+    return wp.vec3(fl.params[pi, b + CX], fl.params[pi, b + CY], -fl.params[pi, b + CEFREE] + compression)
+
+
+@wp.func
+def imu_mount(fl: Fleet, pi: int):
+    """The IMU's position in the body frame."""
+    return wp.vec3(fl.params[pi, IMUX], fl.params[pi, IMUY], fl.params[pi, IMUZ])
+
+
+@wp.func
+def static_compressions(fl: Fleet, pi: int):
+    """The four suspensions' static compressions."""
+    return wp.vec4(fl.params[pi, corner_base(0) + CSSTAT], fl.params[pi, corner_base(1) + CSSTAT],
+                   fl.params[pi, corner_base(2) + CSSTAT], fl.params[pi, corner_base(3) + CSSTAT])
 
 
 @wp.func
@@ -256,11 +273,10 @@ def slice_contact(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, i: int, j:
     na = cfg.na
     c = j / nl
     sl = j - c * nl
-    b = corner_base(c)
-    radius = fl.params[pi, PR]
-    yoff = fl.params[pi, PW] * ((float(sl) + 0.5) / float(nl) - 0.5)
+    radius = fl.params[pi, RADIUS]
+    yoff = fl.params[pi, WIDTH] * ((float(sl) + 0.5) / float(nl) - 0.5)
     sc = st.s[i]
-    r = wp.vec3(fl.params[pi, b + 0], fl.params[pi, b + 1], -fl.params[pi, b + 2] + sc[c])
+    r = wheel_mount(fl, pi, c, sc[c])
     rs = wp.vec3(0.0, yoff, 0.0)
     origin = p + R * (r + rs)
     # penetrations along the sampled arc; around the deepest one a bisection search (two more rays
@@ -297,7 +313,7 @@ def slice_contact(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, i: int, j:
         sd = st.sd[i]
         vs = wp.transpose(R) * v_cg + wp.cross(omega, r + rs) + wp.vec3(0.0, 0.0, sd[c])
         rate = wp.dot(vs, d)
-        f = wp.max((fl.params[pi, PKT] * best + fl.params[pi, PCT] * rate) / float(nl), 0.0)
+        f = wp.max((fl.params[pi, KT] * best + fl.params[pi, CT] * rate) / float(nl), 0.0)
         out = wp.vec4(-d[0] * f, -d[1] * f, -d[2] * f, f)
     return out
 
@@ -330,7 +346,133 @@ def imu_velocity(p_vel: wp.vec3, R: wp.mat33, omega_b: wp.vec3, r_imu: wp.vec3):
 
 
 @wp.func
+def tire_load(slices: wp.array2d(dtype=wp.vec4), i: int, c: int, nl: int, width: float):
+    """Wheel c's tire from its slices' radial forces (contact stage): total force (body frame),
+    moment about the wheel centre (body frame) and summed magnitude."""
+    Fw = wp.vec3()
+    tau = wp.vec3()
+    ftot = float(0.0)
+    for sl in range(nl):
+        fs4 = slices[i, c * nl + sl]
+        Fs = wp.vec3(fs4[0], fs4[1], fs4[2])
+        rs = wp.vec3(0.0, width * ((float(sl) + 0.5) / float(nl) - 0.5), 0.0)
+        Fw = Fw + Fs
+        tau = tau + wp.cross(rs, Fs)
+        ftot = ftot + fs4[3]
+    return Fw, tau, ftot
+
+
+@wp.func
+def body_terms(fl: Fleet, pi: int, e0: wp.vec3, e1: wp.vec3, omega: wp.vec3, alpha0: wp.vec3):
+    """Body block of the generalised mass matrix and forces (coordinates z, phi, theta)."""
+    mb = fl.params[pi, MB]
+    inertia = wp.vec3(fl.params[pi, IXX], fl.params[pi, IYY], fl.params[pi, IZZ])
+    Iw = wp.cw_mul(inertia, omega)
+    bias = wp.cw_mul(inertia, alpha0) + wp.cross(omega, Iw)
+    Ie1 = wp.cw_mul(inertia, e1)
+    A = wp.mat33(mb, 0.0, 0.0,
+                 0.0, inertia[0], wp.dot(e0, Ie1),
+                 0.0, wp.dot(e0, Ie1), wp.dot(e1, Ie1))
+    Qb = wp.vec3(-mb * GRAV, -wp.dot(e0, bias), -wp.dot(e1, bias))
+    return A, Qb
+
+
+@wp.func
+def corner_terms(fl: Fleet, pi: int, c: int, s: wp.vec4, sd: wp.vec4, Fw: wp.vec3, tau: wp.vec3, e0: wp.vec3,
+                 e1: wp.vec3, e2: wp.vec3, omega: wp.vec3, alpha0: wp.vec3, a_h: wp.vec3):
+    """Wheel c (a point mass sliding along the body z axis): its part of the body block of the
+    mass matrix, its coupling column, its generalised forces on (z, phi, theta) and on its
+    suspension coordinate."""
+    mu = fl.params[pi, MU]
+    b = corner_base(c)
+    ez = wp.vec3(0.0, 0.0, 1.0)
+    r = wheel_mount(fl, pi, c, s[c])
+    jz = e2
+    jf = wp.cross(e0, r)
+    jt = wp.cross(e1, r)
+    # body-frame Jacobian columns
+    dA = mu * wp.mat33(wp.dot(jz, jz), wp.dot(jz, jf), wp.dot(jz, jt),
+                       wp.dot(jf, jz), wp.dot(jf, jf), wp.dot(jf, jt),
+                       wp.dot(jt, jz), wp.dot(jt, jf), wp.dot(jt, jt))
+    cpl = mu * wp.vec3(wp.dot(jz, ez), wp.dot(jf, ez), wp.dot(jt, ez))
+    # wheel bias acceleration (body frame)
+    a0 = a_h + wp.cross(alpha0, r) + wp.cross(omega, wp.cross(omega, r)) + 2.0 * wp.cross(omega, ez * sd[c])
+    Fext = Fw - e2 * (mu * GRAV) - a0 * mu          # external + inertial bias force on the wheel
+    ssp = fl.params[pi, b + CKS] * s[c] + fl.params[pi, b + CCS] * sd[c] + stop_force(
+        s[c], sd[c], fl.params[pi, b + CSMIN], fl.params[pi, b + CSMAX], fl.params[pi, KSTOP], fl.params[pi, CSTOP])
+    dQb = wp.vec3(wp.dot(jz, Fext), wp.dot(jf, Fext) + wp.dot(e0, tau), wp.dot(jt, Fext) + wp.dot(e1, tau))
+    return dA, cpl, dQb, wp.dot(ez, Fext) - ssp
+
+
+@wp.func
+def solve_accelerations(A: wp.mat33, Qb: wp.vec3, Qs: wp.vec4, cpl0: wp.vec3, cpl1: wp.vec3, cpl2: wp.vec3,
+                        cpl3: wp.vec3, mu: float):
+    """Eliminate the (diagonal mu) wheel block, A' = A - sum c c^T / mu, solve the 3x3 body
+    system, back-substitute the wheels: (qdd, sdd)."""
+    Ar = A - (wp.outer(cpl0, cpl0) + wp.outer(cpl1, cpl1) + wp.outer(cpl2, cpl2) + wp.outer(cpl3, cpl3)) / mu
+    rhs = Qb - (cpl0 * Qs[0] + cpl1 * Qs[1] + cpl2 * Qs[2] + cpl3 * Qs[3]) / mu
+    qdd = wp.inverse(Ar) * rhs
+    sdd = wp.vec4((Qs[0] - wp.dot(cpl0, qdd)) / mu, (Qs[1] - wp.dot(cpl1, qdd)) / mu,
+                  (Qs[2] - wp.dot(cpl2, qdd)) / mu, (Qs[3] - wp.dot(cpl3, qdd)) / mu)
+    return qdd, sdd
+
+
+@wp.func
+def count_lost(st: State, cfg: Config, i: int, lost: bool):
+    """Consecutive steps with a wheel off the road; too many end the vehicle's run."""
+    if lost:
+        st.lost[i] = st.lost[i] + 1
+        if st.lost[i] > cfg.lost_limit:
+            st.dead[i] = 1
+    else:
+        st.lost[i] = 0
+
+
+@wp.func
+def sense(fl: Fleet, st: State, cfg: Config, out: Output, i: int, any_lost: int, tire_tot: wp.vec4):
+    """After a step: the IMU (delta-velocity of its point, body frame), the lost-wheel count,
+    and at the end of an IMU interval one output sample."""
+    pi = fl.pidx[i]
+    dt = cfg.dt
+    step = st.step[i]
+    q = st.q[i]
+    qd = st.qd[i]
+    s = st.s[i]
+    v = fl.speed[i]
+    p2, R2, psi2, wz2 = pose_of(fl, st, i, dt, step)
+    cf2 = wp.cos(q[1])
+    sf2 = wp.sin(q[1])
+    e1n = wp.vec3(0.0, cf2, -sf2)
+    e2n = wp.vec3(-wp.sin(q[2]), sf2 * wp.cos(q[2]), cf2 * wp.cos(q[2]))
+    omega2 = wp.vec3(1.0, 0.0, 0.0) * qd[1] + e1n * qd[2] + e2n * wz2
+    vcg2 = wp.vec3(wp.cos(psi2) * v, wp.sin(psi2) * v, qd[0])
+    vimu = imu_velocity(vcg2, R2, omega2, imu_mount(fl, pi))
+    acc = (vimu - st.vimu[i]) / dt + wp.vec3(0.0, 0.0, GRAV)
+    st.vimu[i] = vimu
+    st.acc_sum[i] = st.acc_sum[i] + wp.transpose(R2) * acc
+    st.gyro_sum[i] = st.gyro_sum[i] + omega2
+    count_lost(st, cfg, i, any_lost != 0)
+    if step % cfg.imu_every == 0:
+        k = step / cfg.imu_every - 1
+        n = float(cfg.imu_every)
+        out.acc[i, k] = st.acc_sum[i] / n
+        out.gyro[i, k] = st.gyro_sum[i] / n
+        st.acc_sum[i] = wp.vec3()
+        st.gyro_sum[i] = wp.vec3()
+        out.pose[i, k] = q
+        wheel_z = wp.vec4()
+        for c in range(4):
+            wc = p2 + R2 * wheel_mount(fl, pi, c, s[c])
+            wheel_z[c] = wc[2]
+        out.wheel_z[i, k] = wheel_z
+        out.tire_f[i, k] = tire_tot
+        out.susp[i, k] = s - static_compressions(fl, pi)
+
+
+@wp.func
 def advance_full(fl: Fleet, st: State, cfg: Config, out: Output, i: int, slices: wp.array2d(dtype=wp.vec4)):
+    """One step of vehicle i from its tire slices' forces: projected Newton-Euler for the body
+    and the four wheels, semi-implicit Euler, then the sensors."""
     pi = fl.pidx[i]
     dt = cfg.dt
     step = st.step[i]
@@ -354,68 +496,25 @@ def advance_full(fl: Fleet, st: State, cfg: Config, out: Output, i: int, slices:
                   -sf * qd[1] * qd[2] + (cf * ct * qd[1] - sf * stt * qd[2]) * wz,
                   -cf * qd[1] * qd[2] + (-sf * ct * qd[1] - cf * stt * qd[2]) * wz)
     alpha0 = edq                               # psi_ddot = 0 on each path piece
-    tang = wp.vec3(wp.cos(psi), wp.sin(psi), 0.0)
     left = wp.vec3(-wp.sin(psi), wp.cos(psi), 0.0)
     a_h = wp.transpose(R) * (left * (v * wz))    # prescribed (centripetal) CG acceleration, body frame
-    v_cg = tang * v + wp.vec3(0.0, 0.0, qd[0])
-    mb = fl.params[pi, PMB]
-    mu = fl.params[pi, PMU]
-    inertia = wp.vec3(fl.params[pi, PIXX], fl.params[pi, PIYY], fl.params[pi, PIZZ])
-    width = fl.params[pi, PW]
-    kstop = fl.params[pi, PKSTOP]
-    cstop = fl.params[pi, PCSTOP]
-    ez = wp.vec3(0.0, 0.0, 1.0)
-    # body block of the generalised mass matrix and forces (coordinates z, phi, theta)
-    Iw = wp.cw_mul(inertia, omega)
-    bias = wp.cw_mul(inertia, alpha0) + wp.cross(omega, Iw)
-    Ie1 = wp.cw_mul(inertia, e1)
-    A = wp.mat33(mb, 0.0, 0.0,
-                 0.0, inertia[0], wp.dot(e0, Ie1),
-                 0.0, wp.dot(e0, Ie1), wp.dot(e1, Ie1))
-    Qb = wp.vec3(-mb * GRAV, -wp.dot(e0, bias), -wp.dot(e1, bias))
+    A, Qb = body_terms(fl, pi, e0, e1, omega, alpha0)
     Qs = wp.vec4()
     cpl0 = wp.vec3()
     cpl1 = wp.vec3()
     cpl2 = wp.vec3()
     cpl3 = wp.vec3()
     tire_tot = wp.vec4()
-    wheel_z = wp.vec4()
     any_lost = int(0)
-    nl = cfg.nl
     for c in range(4):
-        b = corner_base(c)
-        ks = fl.params[pi, b + 3]
-        cs = fl.params[pi, b + 4]
-        r = wp.vec3(fl.params[pi, b + 0], fl.params[pi, b + 1], -fl.params[pi, b + 2] + s[c])
-        jz = e2
-        jf = wp.cross(e0, r)
-        jt = wp.cross(e1, r)
-        # wheel contributions to the mass matrix (point mass, body-frame Jacobian columns)
-        A = A + mu * wp.mat33(wp.dot(jz, jz), wp.dot(jz, jf), wp.dot(jz, jt),
-                              wp.dot(jf, jz), wp.dot(jf, jf), wp.dot(jf, jt),
-                              wp.dot(jt, jz), wp.dot(jt, jf), wp.dot(jt, jt))
-        cpl = mu * wp.vec3(wp.dot(jz, ez), wp.dot(jf, ez), wp.dot(jt, ez))
-        # wheel bias acceleration (body frame)
-        a0 = a_h + wp.cross(alpha0, r) + wp.cross(omega, wp.cross(omega, r)) + 2.0 * wp.cross(omega, ez * sd[c])
-        # tire: the slices' radial forces (contact stage), their moment about the wheel centre
-        Fw = wp.vec3()       # total tire force on this wheel, body frame
-        tau = wp.vec3()      # moment of the slice forces about the wheel centre, body frame
-        ftot = float(0.0)
-        for sl in range(nl):
-            fs4 = slices[i, c * nl + sl]
-            Fs = wp.vec3(fs4[0], fs4[1], fs4[2])
-            rs = wp.vec3(0.0, width * ((float(sl) + 0.5) / float(nl) - 0.5), 0.0)
-            Fw = Fw + Fs
-            tau = tau + wp.cross(rs, Fs)
-            ftot = ftot + fs4[3]
+        Fw, tau, ftot = tire_load(slices, i, c, cfg.nl, fl.params[pi, WIDTH])
         if ftot <= 0.0:
             any_lost = 1
         tire_tot[c] = ftot
-        Fext = Fw - e2 * (mu * GRAV) - a0 * mu          # external + inertial bias force on the wheel
-        ssp = ks * s[c] + cs * sd[c] + stop_force(s[c], sd[c], fl.params[pi, b + 5], fl.params[pi, b + 6],
-                                                   kstop, cstop)
-        Qb = Qb + wp.vec3(wp.dot(jz, Fext), wp.dot(jf, Fext) + wp.dot(e0, tau), wp.dot(jt, Fext) + wp.dot(e1, tau))
-        Qs[c] = wp.dot(ez, Fext) - ssp
+        dA, cpl, dQb, qs = corner_terms(fl, pi, c, s, sd, Fw, tau, e0, e1, e2, omega, alpha0, a_h)
+        A = A + dA
+        Qb = Qb + dQb
+        Qs[c] = qs
         if c == 0:
             cpl0 = cpl
         elif c == 1:
@@ -424,12 +523,7 @@ def advance_full(fl: Fleet, st: State, cfg: Config, out: Output, i: int, slices:
             cpl2 = cpl
         else:
             cpl3 = cpl
-    # eliminate the wheel block (diagonal mu): A' = A - sum c c^T / mu
-    A = A - (wp.outer(cpl0, cpl0) + wp.outer(cpl1, cpl1) + wp.outer(cpl2, cpl2) + wp.outer(cpl3, cpl3)) / mu
-    rhs = Qb - (cpl0 * Qs[0] + cpl1 * Qs[1] + cpl2 * Qs[2] + cpl3 * Qs[3]) / mu
-    qdd = wp.inverse(A) * rhs
-    sdd = wp.vec4((Qs[0] - wp.dot(cpl0, qdd)) / mu, (Qs[1] - wp.dot(cpl1, qdd)) / mu,
-                  (Qs[2] - wp.dot(cpl2, qdd)) / mu, (Qs[3] - wp.dot(cpl3, qdd)) / mu)
+    qdd, sdd = solve_accelerations(A, Qb, Qs, cpl0, cpl1, cpl2, cpl3, fl.params[pi, MU])
     # semi-implicit Euler
     qd = qd + qdd * dt
     q = q + qd * dt
@@ -439,44 +533,8 @@ def advance_full(fl: Fleet, st: State, cfg: Config, out: Output, i: int, slices:
     st.qd[i] = qd
     st.s[i] = s
     st.sd[i] = sd
-    step = step + 1
-    st.step[i] = step
-    # IMU from the new state
-    p2, R2, psi2, wz2 = pose_of(fl, st, i, dt, step)
-    cf2 = wp.cos(q[1])
-    sf2 = wp.sin(q[1])
-    e1n = wp.vec3(0.0, cf2, -sf2)
-    e2n = wp.vec3(-wp.sin(q[2]), sf2 * wp.cos(q[2]), cf2 * wp.cos(q[2]))
-    omega2 = e0 * qd[1] + e1n * qd[2] + e2n * wz2
-    vcg2 = wp.vec3(wp.cos(psi2) * v, wp.sin(psi2) * v, qd[0])
-    r_imu = wp.vec3(fl.params[pi, PIMUX], fl.params[pi, PIMUY], fl.params[pi, PIMUZ])
-    vimu = imu_velocity(vcg2, R2, omega2, r_imu)
-    acc = (vimu - st.vimu[i]) / dt + wp.vec3(0.0, 0.0, GRAV)
-    st.vimu[i] = vimu
-    st.acc_sum[i] = st.acc_sum[i] + wp.transpose(R2) * acc
-    st.gyro_sum[i] = st.gyro_sum[i] + omega2
-    if any_lost != 0:
-        st.lost[i] = st.lost[i] + 1
-        if st.lost[i] > cfg.lost_limit:
-            st.dead[i] = 1
-    else:
-        st.lost[i] = 0
-    if step % cfg.imu_every == 0:
-        k = step / cfg.imu_every - 1
-        n = float(cfg.imu_every)
-        out.acc[i, k] = st.acc_sum[i] / n
-        out.gyro[i, k] = st.gyro_sum[i] / n
-        st.acc_sum[i] = wp.vec3()
-        st.gyro_sum[i] = wp.vec3()
-        out.pose[i, k] = q
-        for c in range(4):
-            b = corner_base(c)
-            wc = p2 + R2 * wp.vec3(fl.params[pi, b + 0], fl.params[pi, b + 1], -fl.params[pi, b + 2] + s[c])
-            wheel_z[c] = wc[2]
-        out.wheel_z[i, k] = wheel_z
-        out.tire_f[i, k] = tire_tot
-        out.susp[i, k] = s - wp.vec4(fl.params[pi, PC0 + 7], fl.params[pi, PC0 + PCSTRIDE + 7],
-                                     fl.params[pi, PC0 + 2 * PCSTRIDE + 7], fl.params[pi, PC0 + 3 * PCSTRIDE + 7])
+    st.step[i] = step + 1
+    sense(fl, st, cfg, out, i, any_lost, tire_tot)
 
 
 @kernel
@@ -515,27 +573,26 @@ def init_full_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, ztop: f
     ok = int(1)
     for c in range(4):
         b = corner_base(c)
-        w = R0 * wp.vec3(fl.params[pi, b + 0], fl.params[pi, b + 1], 0.0)
+        w = R0 * wp.vec3(fl.params[pi, b + CX], fl.params[pi, b + CY], 0.0)
         hq = wp.mesh_query_ray(mesh, wp.vec3(xy[0] + w[0], xy[1] + w[1], ztop), wp.vec3(0.0, 0.0, -1.0), 1.0e6)
         if hq.result:
             h[c] = ztop - hq.t
         else:
             ok = 0
-    xf = fl.params[pi, PC0 + 0]
-    xr = fl.params[pi, PC0 + 2 * PCSTRIDE + 0]
+    xf = fl.params[pi, corner_base(0) + CX]
+    xr = fl.params[pi, corner_base(2) + CX]
     wb = xf - xr
     hf = 0.5 * (h[0] + h[1])
     hr = 0.5 * (h[2] + h[3])
-    tf = fl.params[pi, PC0 + 1] - fl.params[pi, PC0 + PCSTRIDE + 1]
-    tr = fl.params[pi, PC0 + 2 * PCSTRIDE + 1] - fl.params[pi, PC0 + 3 * PCSTRIDE + 1]
+    tf = fl.params[pi, corner_base(0) + CY] - fl.params[pi, corner_base(1) + CY]
+    tr = fl.params[pi, corner_base(2) + CY] - fl.params[pi, corner_base(3) + CY]
     hcg = hr + (hf - hr) * (-xr) / wb
     theta = -wp.atan((hf - hr) / wb)
     phi = wp.atan(0.5 * ((h[0] - h[1]) / tf + (h[2] - h[3]) / tr))
-    q = wp.vec3(hcg + fl.params[pi, PCGH], phi, theta)
+    q = wp.vec3(hcg + fl.params[pi, CGH], phi, theta)
     st.q[i] = q
     st.qd[i] = wp.vec3()
-    st.s[i] = wp.vec4(fl.params[pi, PC0 + 7], fl.params[pi, PC0 + PCSTRIDE + 7],
-                      fl.params[pi, PC0 + 2 * PCSTRIDE + 7], fl.params[pi, PC0 + 3 * PCSTRIDE + 7])
+    st.s[i] = static_compressions(fl, pi)
     st.sd[i] = wp.vec4()
     st.step[i] = 0
     st.lost[i] = 0
@@ -543,7 +600,7 @@ def init_full_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, ztop: f
     R = euler_rot(phi, theta, psi)
     e2 = wp.vec3(-wp.sin(theta), wp.sin(phi) * wp.cos(theta), wp.cos(phi) * wp.cos(theta))
     omega = e2 * (dpsi * v)
-    r_imu = wp.vec3(fl.params[pi, PIMUX], fl.params[pi, PIMUY], fl.params[pi, PIMUZ])
+    r_imu = imu_mount(fl, pi)
     st.vimu[i] = imu_velocity(wp.vec3(wp.cos(psi) * v, wp.sin(psi) * v, 0.0), R, omega, r_imu)
     st.acc_sum[i] = wp.vec3()
     st.gyro_sum[i] = wp.vec3()
@@ -576,7 +633,7 @@ def fix_vimu_kernel(fl: Fleet, st: State, cfg: Config):
     e2 = wp.vec3(-wp.sin(q[2]), sf * wp.cos(q[2]), cf * wp.cos(q[2]))
     omega = wp.vec3(1.0, 0.0, 0.0) * qd[1] + e1 * qd[2] + e2 * wz
     v = fl.speed[i]
-    r_imu = wp.vec3(fl.params[pi, PIMUX], fl.params[pi, PIMUY], fl.params[pi, PIMUZ])
+    r_imu = imu_mount(fl, pi)
     st.vimu[i] = imu_velocity(wp.vec3(wp.cos(psi) * v, wp.sin(psi) * v, qd[0]), R, omega, r_imu)
 
 
@@ -585,15 +642,15 @@ def fix_vimu_kernel(fl: Fleet, st: State, cfg: Config):
 def quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Output, nsub: int):
     i = wp.tid()
     pi = fl.pidx[i]
-    ms = fl.params[pi, 0]
-    mu = fl.params[pi, 1]
-    ks = fl.params[pi, 2]
-    cs = fl.params[pi, 3]
-    kt = fl.params[pi, 4]
-    ctire = fl.params[pi, 5]
-    radius = fl.params[pi, 6]
-    efree = fl.params[pi, 7]
-    sstat = fl.params[pi, 8]
+    ms = fl.params[pi, QMS]
+    mu = fl.params[pi, QMU]
+    ks = fl.params[pi, QKS]
+    cs = fl.params[pi, QCS]
+    kt = fl.params[pi, QKT]
+    ctire = fl.params[pi, QCT]
+    radius = fl.params[pi, QR]
+    efree = fl.params[pi, QEFREE]
+    sstat = fl.params[pi, QSSTAT]
     dt = cfg.dt
     down = wp.vec3(0.0, 0.0, -1.0)
     for _k in range(nsub):
@@ -621,12 +678,7 @@ def quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, cfg: Config, out: Outp
         vz = wp.vec3(0.0, 0.0, qd[0])
         st.acc_sum[i] = st.acc_sum[i] + (vz - st.vimu[i]) / dt + wp.vec3(0.0, 0.0, GRAV)
         st.vimu[i] = vz
-        if ft <= 0.0:
-            st.lost[i] = st.lost[i] + 1
-            if st.lost[i] > cfg.lost_limit:
-                st.dead[i] = 1
-        else:
-            st.lost[i] = 0
+        count_lost(st, cfg, i, ft <= 0.0)
         if step % cfg.imu_every == 0:
             k = step / cfg.imu_every - 1
             out.acc[i, k] = st.acc_sum[i] / float(cfg.imu_every)
@@ -649,11 +701,11 @@ def init_quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, ztop: float):
     if hq.result:
         h = ztop - hq.t
         st.dead[i] = 0
-    ms = fl.params[pi, 0]
-    mu = fl.params[pi, 1]
-    kt = fl.params[pi, 4]
-    zu = h + fl.params[pi, 6] - (ms + mu) * GRAV / kt
-    st.q[i] = wp.vec3(zu + fl.params[pi, 7] - fl.params[pi, 8], zu, 0.0)
+    ms = fl.params[pi, QMS]
+    mu = fl.params[pi, QMU]
+    kt = fl.params[pi, QKT]
+    zu = h + fl.params[pi, QR] - (ms + mu) * GRAV / kt
+    st.q[i] = wp.vec3(zu + fl.params[pi, QEFREE] - fl.params[pi, QSSTAT], zu, 0.0)
     st.qd[i] = wp.vec3()
     st.step[i] = 0
     st.lost[i] = 0
@@ -662,43 +714,84 @@ def init_quarter_kernel(mesh: wp.uint64, fl: Fleet, st: State, ztop: float):
 
 
 # ----------------------------------------------------------------------------- host side
-def resample_path(polyline: np.ndarray, ds: float = 0.5, heading_window_m: float = 2.0):
-    """Uniform-arclength resampling of a polyline, with a smoothed, unwrapped heading.
+def pack_fleet(vehicles: list[dict], dt: float, imu_every: int, dev) -> tuple[Fleet, list, np.ndarray]:
+    """The per-vehicle constants on the device: one packed parameter row per distinct parameter
+    dict, the resampled paths end to end. Returns (fleet, paths as (xy, psi, ds), steps per
+    vehicle in whole IMU intervals)."""
+    rows, pidx, seen = [], [], {}
+    for veh in vehicles:
+        key = id(veh["params"])
+        if key not in seen:
+            seen[key] = len(rows)
+            rows.append(pack_vehicle(veh["params"]))
+        pidx.append(seen[key])
+    paths = [resample_path(veh["path"]) for veh in vehicles]
+    sizes = [len(xy) for xy, _, _ in paths]
+    nsteps = np.array([int(round(veh["duration"] / dt)) for veh in vehicles], dtype=np.int32)
+    nsteps = (nsteps // imu_every) * imu_every
 
-    A straight 2-point path stays 2 points (exact). Returns (xy (K,2), psi (K,), ds)."""
-    pts = np.asarray(polyline, dtype=np.float64).reshape(-1, 2)
-    seg = np.diff(pts, axis=0)
-    keep = np.concatenate([[True], np.linalg.norm(seg, axis=1) > 1e-9])
-    pts = pts[keep]
-    if len(pts) < 2:
-        raise ValueError("path needs at least two distinct points")
-    seg = np.diff(pts, axis=0)
-    length = np.linalg.norm(seg, axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(length)])
-    if len(pts) == 2:
-        psi = np.arctan2(seg[0, 1], seg[0, 0])
-        return pts.copy(), np.array([psi, psi]), float(cum[-1])
-    n = max(2, int(math.ceil(cum[-1] / ds)) + 1)
-    s = np.linspace(0.0, cum[-1], n)
-    xy = np.column_stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])])
-    step = s[1] - s[0]
-    half = max(1, int(round(heading_window_m / 2 / step)))
-    lo = np.clip(np.arange(n) - half, 0, n - 1)
-    hi = np.clip(np.arange(n) + half, 0, n - 1)
-    d = xy[hi] - xy[lo]
-    psi = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
-    return xy, psi, float(step)
+    def arr(values, np_dtype, wp_dtype):
+        return wp.array(np.asarray(values, dtype=np_dtype), dtype=wp_dtype, device=dev)
+    fl = Fleet()
+    fl.params = arr(np.array(rows), np.float32, wp.float32)
+    fl.pidx = arr(pidx, np.int32, wp.int32)
+    fl.path_xy = arr(np.concatenate([xy for xy, _, _ in paths]), np.float32, wp.vec2)
+    fl.path_psi = arr(np.concatenate([psi for _, psi, _ in paths]), np.float32, wp.float32)
+    fl.path_off = arr(np.concatenate([[0], np.cumsum(sizes)[:-1]]), np.int32, wp.int32)
+    fl.path_n = arr(sizes, np.int32, wp.int32)
+    fl.path_ds = arr([ds for _, _, ds in paths], np.float32, wp.float32)
+    fl.s0 = arr([veh["s0"] for veh in vehicles], np.float32, wp.float32)
+    fl.speed = arr([veh["speed"] for veh in vehicles], np.float32, wp.float32)
+    fl.nsteps = arr(nsteps, np.int32, wp.int32)
+    return fl, paths, nsteps
 
 
-def path_at(xy: np.ndarray, psi: np.ndarray, ds: float, s: np.ndarray) -> np.ndarray:
-    """(x, y, yaw) at arclengths ``s`` exactly as the kernels evaluate a resampled path
-    (linear inside, straight extrapolation beyond the ends)."""
-    u = np.asarray(s, dtype=np.float64) / ds
-    k = np.clip(np.floor(u).astype(np.int64), 0, len(xy) - 2)
-    f = (u - k)[:, None]
-    p = xy[k] + (xy[k + 1] - xy[k]) * f
-    fc = np.clip(f[:, 0], 0.0, 1.0)
-    return np.column_stack([p, psi[k] + (psi[k + 1] - psi[k]) * fc])
+def new_state(n: int, dev) -> State:
+    st = State()
+    for name, dtype in (("q", wp.vec3), ("qd", wp.vec3), ("s", wp.vec4), ("sd", wp.vec4), ("step", wp.int32),
+                        ("vimu", wp.vec3), ("acc_sum", wp.vec3), ("gyro_sum", wp.vec3), ("lost", wp.int32),
+                        ("dead", wp.int32)):
+        setattr(st, name, wp.zeros(n, dtype=dtype, device=dev))
+    return st
+
+
+OUTPUTS = (("acc", wp.vec3, 3), ("gyro", wp.vec3, 3), ("pose", wp.vec3, 3), ("wheel_z", wp.vec4, 4),
+           ("tire_f", wp.vec4, 4), ("susp", wp.vec4, 4))
+
+
+def new_output(n: int, samples: int, dev) -> Output:
+    """Every output sample NaN until written (a vehicle that ends early keeps NaN)."""
+    out = Output()
+    for name, dtype, width in OUTPUTS:
+        setattr(out, name, wp.array(np.full((n, samples, width), np.nan, dtype=np.float32),
+                                    dtype=dtype, device=dev))
+    return out
+
+
+def unpack_output(out: Output, st: State, vehicles: list[dict], paths: list, nsteps: np.ndarray, imu_every: int,
+                  dt: float) -> dict:
+    """Device outputs -> float64 numpy; x, y, yaw from the (prescribed) paths; NaN after a
+    vehicle left the road."""
+    res = {name: getattr(out, name).numpy().astype(np.float64) for name, _, _ in OUTPUTS}
+    n, T = res["acc"].shape[:2]
+    t = (np.arange(T) + 1) * imu_every * dt
+    valid = (nsteps // imu_every).astype(np.int64)
+    dead = st.dead.numpy().astype(bool)
+    steps = st.step.numpy().astype(np.int64)
+    xyz = np.full((n, T, 3), np.nan)
+    for i, (veh, (xy, psi, ds)) in enumerate(zip(vehicles, paths)):
+        tt = t[: valid[i]]
+        p, yaw, _ = resampled_path_at(xy, psi, ds, veh["s0"] + veh["speed"] * tt)
+        xyz[i, : len(tt)] = np.column_stack([p, yaw])
+    p3 = res["pose"]
+    res["pose"] = np.concatenate([xyz[..., :2], p3, xyz[..., 2:]], axis=-1)  # x y z roll pitch yaw
+    for key in ("acc", "gyro", "pose", "wheel_z", "tire_f", "susp"):
+        arr = res[key]
+        for i in range(n):
+            if dead[i]:
+                arr[i, int(steps[i] // imu_every):] = np.nan
+    res.update({"t": t, "valid": valid, "dead": dead, "steps": steps})
+    return res
 
 
 def preload(device, launches) -> float:
@@ -758,59 +851,9 @@ class VehicleSim:
         mode = modes.pop()
         imu_every = max(1, int(round(1.0 / (imu_rate_hz * dt))))
         dev = self.device
-        # parameter table (unique dicts)
-        rows, pidx, seen = [], [], {}
-        for veh in vehicles:
-            key = id(veh["params"])
-            if key not in seen:
-                seen[key] = len(rows)
-                rows.append(pack_vehicle(veh["params"]))
-            pidx.append(seen[key])
-        xs, psis, offs, ns, dss = [], [], [], [], []
-        total = 0
-        for veh in vehicles:
-            xy, psi, ds = resample_path(veh["path"])
-            xs.append(xy)
-            psis.append(psi)
-            offs.append(total)
-            ns.append(len(xy))
-            dss.append(ds)
-            total += len(xy)
-        nsteps = np.array([int(round(veh["duration"] / dt)) for veh in vehicles], dtype=np.int32)
-        nsteps = (nsteps // imu_every) * imu_every
+        fl, paths, nsteps = pack_fleet(vehicles, dt, imu_every, dev)
         T = int(nsteps.max() // imu_every)
-        fl = Fleet()
-        fl.params = wp.array(np.array(rows), dtype=wp.float32, device=dev)
-        fl.pidx = wp.array(np.array(pidx, dtype=np.int32), dtype=wp.int32, device=dev)
-        fl.path_xy = wp.array(np.concatenate(xs).astype(np.float32), dtype=wp.vec2, device=dev)
-        fl.path_psi = wp.array(np.concatenate(psis).astype(np.float32), dtype=wp.float32, device=dev)
-        fl.path_off = wp.array(np.array(offs, dtype=np.int32), dtype=wp.int32, device=dev)
-        fl.path_n = wp.array(np.array(ns, dtype=np.int32), dtype=wp.int32, device=dev)
-        fl.path_ds = wp.array(np.array(dss, dtype=np.float32), dtype=wp.float32, device=dev)
-        fl.s0 = wp.array(np.array([veh["s0"] for veh in vehicles], dtype=np.float32), dtype=wp.float32, device=dev)
-        fl.speed = wp.array(np.array([veh["speed"] for veh in vehicles], dtype=np.float32), dtype=wp.float32,
-                            device=dev)
-        fl.nsteps = wp.array(nsteps, dtype=wp.int32, device=dev)
-        st = State()
-        st.q = wp.zeros(n, dtype=wp.vec3, device=dev)
-        st.qd = wp.zeros(n, dtype=wp.vec3, device=dev)
-        st.s = wp.zeros(n, dtype=wp.vec4, device=dev)
-        st.sd = wp.zeros(n, dtype=wp.vec4, device=dev)
-        st.step = wp.zeros(n, dtype=wp.int32, device=dev)
-        st.vimu = wp.zeros(n, dtype=wp.vec3, device=dev)
-        st.acc_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
-        st.gyro_sum = wp.zeros(n, dtype=wp.vec3, device=dev)
-        st.lost = wp.zeros(n, dtype=wp.int32, device=dev)
-        st.dead = wp.zeros(n, dtype=wp.int32, device=dev)
-        out = Output()
-        nan3 = np.full((n, T, 3), np.nan, dtype=np.float32)
-        nan4 = np.full((n, T, 4), np.nan, dtype=np.float32)
-        out.acc = wp.array(nan3, dtype=wp.vec3, device=dev)
-        out.gyro = wp.array(nan3, dtype=wp.vec3, device=dev)
-        out.pose = wp.array(nan3, dtype=wp.vec3, device=dev)
-        out.wheel_z = wp.array(nan4, dtype=wp.vec4, device=dev)
-        out.tire_f = wp.array(nan4, dtype=wp.vec4, device=dev)
-        out.susp = wp.array(nan4, dtype=wp.vec4, device=dev)
+        st, out = new_state(n, dev), new_output(n, T, dev)
         cfg = Config()
         cfg.dt = dt
         cfg.imu_every = imu_every
@@ -827,81 +870,79 @@ class VehicleSim:
             compile_s = preload(dev, [(init_full_kernel, init_full_kernel.module.options["block_dim"]),
                                       (contact_kernel, block_dims[0]), (step_kernel, block_dims[1])])
         t0 = time.perf_counter()
-        if mode == "full":
-            wp.launch(init_full_kernel, dim=n, inputs=[self.mesh.id, fl, st, cfg, self.ztop], device=dev)
-        else:
-            wp.launch(init_quarter_kernel, dim=n, inputs=[self.mesh.id, fl, st, self.ztop], device=dev)
-        if initial_state is not None:
-            mask = np.zeros(n, dtype=np.int32)
-            q0, qd0 = st.q.numpy(), st.qd.numpy()
-            s0_, sd0 = st.s.numpy(), st.sd.numpy()
-            for idx, values in initial_state.items():
-                mask[idx] = 1
-                q0[idx] = values.get("q", q0[idx])
-                qd0[idx] = values.get("qd", qd0[idx])
-                s0_[idx] = values.get("s", s0_[idx])
-                sd0[idx] = values.get("sd", sd0[idx])
-            wp.launch(set_state_kernel, dim=n, inputs=[st, wp.array(q0, dtype=wp.vec3, device=dev),
-                                                       wp.array(qd0, dtype=wp.vec3, device=dev),
-                                                       wp.array(s0_, dtype=wp.vec4, device=dev),
-                                                       wp.array(sd0, dtype=wp.vec4, device=dev),
-                                                       wp.array(mask, dtype=wp.int32, device=dev)], device=dev)
-            if mode == "full":
-                wp.launch(fix_vimu_kernel, dim=n, inputs=[fl, st, cfg], device=dev)
-            else:
-                st.vimu = wp.array(np.column_stack([np.zeros((n, 2)), st.qd.numpy()[:, :1]]).astype(np.float32),
-                                   dtype=wp.vec3, device=dev)
+        self._start(mode, fl, st, cfg, initial_state)
         max_steps = int(nsteps.max())
         if mode == "quarter":
             sub = steps_per_launch or 1000
             for _ in range((max_steps + sub - 1) // sub):
                 wp.launch(quarter_kernel, dim=n, inputs=[self.mesh.id, fl, st, cfg, out, sub], device=dev)
         elif use_split:
-            def one_step():
-                wp.launch(contact_kernel, dim=(n, n_slices), inputs=[self.mesh.id, fl, st, cfg, slices], device=dev,
-                          block_dim=block_dims[0])
-                # small blocks: a few thousand vehicle threads must still reach every SM
-                wp.launch(step_kernel, dim=n, inputs=[fl, st, cfg, out, slices], device=dev, block_dim=block_dims[1])
-            chunk = max(1, int(graph_steps))
-            done = 0
-            graph = None
-            while done < max_steps:
-                if dev.is_cuda and max_steps - done >= chunk:
-                    if graph is None:
-                        with wp.ScopedCapture(device=dev) as cap:
-                            for _ in range(chunk):
-                                one_step()
-                        graph = cap.graph
-                    wp.capture_launch(graph)
-                    done += chunk
-                else:
-                    one_step()
-                    done += 1
+            self._steps_split(fl, st, cfg, out, slices, max_steps, graph_steps, block_dims)
         else:
             sub = steps_per_launch or imu_every * 25
             for _ in range((max_steps + sub - 1) // sub):
                 wp.launch(fused_kernel, dim=n, inputs=[self.mesh.id, fl, st, cfg, out, slices, sub], device=dev)
         wp.synchronize_device(dev)
         wall = time.perf_counter() - t0
-        acc = out.acc.numpy().astype(np.float64)
-        res = {"t": (np.arange(T) + 1) * imu_every * dt, "acc": acc, "gyro": out.gyro.numpy().astype(np.float64),
-               "pose3": out.pose.numpy().astype(np.float64), "wheel_z": out.wheel_z.numpy().astype(np.float64),
-               "tire_f": out.tire_f.numpy().astype(np.float64), "susp": out.susp.numpy().astype(np.float64),
-               "valid": (nsteps // imu_every).astype(np.int64), "dead": st.dead.numpy().astype(bool),
-               "steps": st.step.numpy().astype(np.int64), "wall_s": wall, "bvh_s": self.bvh_s,
-               "sim_s": float((nsteps * dt).sum()), "compile_s": compile_s, "imu_dt": imu_every * dt, "dt": dt,
-               "mode": mode}
-        # x, y, yaw from the paths (they are prescribed)
-        xyz = np.full((n, T, 3), np.nan)
-        for i, veh in enumerate(vehicles):
-            tt = res["t"][: res["valid"][i]]
-            xyz[i, : len(tt)] = path_at(xs[i], psis[i], dss[i], veh["s0"] + veh["speed"] * tt)
-        p3 = res.pop("pose3")
-        res["pose"] = np.concatenate([xyz[..., :2], p3, xyz[..., 2:]], axis=-1)  # x y z roll pitch yaw
-        for key in ("acc", "gyro", "pose", "wheel_z", "tire_f", "susp"):
-            arr = res[key]
-            for i in range(n):
-                if res["dead"][i]:
-                    last = int(res["steps"][i] // imu_every)
-                    arr[i, last:] = np.nan
+        res = unpack_output(out, st, vehicles, paths, nsteps, imu_every, dt)
+        res.update({"wall_s": wall, "bvh_s": self.bvh_s, "sim_s": float((nsteps * dt).sum()), "compile_s": compile_s,
+                    "imu_dt": imu_every * dt, "dt": dt, "mode": mode})
         return res
+
+    def _start(self, mode: str, fl: Fleet, st: State, cfg: Config, initial_state: dict | None) -> None:
+        """Every vehicle at rest on its springs over the road, then the given initial states."""
+        dev = self.device
+        n = st.q.shape[0]
+        if mode == "full":
+            wp.launch(init_full_kernel, dim=n, inputs=[self.mesh.id, fl, st, cfg, self.ztop], device=dev)
+        else:
+            wp.launch(init_quarter_kernel, dim=n, inputs=[self.mesh.id, fl, st, self.ztop], device=dev)
+        if initial_state is None:
+            return
+        mask = np.zeros(n, dtype=np.int32)
+        q0, qd0 = st.q.numpy(), st.qd.numpy()
+        s0_, sd0 = st.s.numpy(), st.sd.numpy()
+        for idx, values in initial_state.items():
+            mask[idx] = 1
+            q0[idx] = values.get("q", q0[idx])
+            qd0[idx] = values.get("qd", qd0[idx])
+            s0_[idx] = values.get("s", s0_[idx])
+            sd0[idx] = values.get("sd", sd0[idx])
+        wp.launch(set_state_kernel, dim=n, inputs=[st, wp.array(q0, dtype=wp.vec3, device=dev),
+                                                   wp.array(qd0, dtype=wp.vec3, device=dev),
+                                                   wp.array(s0_, dtype=wp.vec4, device=dev),
+                                                   wp.array(sd0, dtype=wp.vec4, device=dev),
+                                                   wp.array(mask, dtype=wp.int32, device=dev)], device=dev)
+        if mode == "full":
+            wp.launch(fix_vimu_kernel, dim=n, inputs=[fl, st, cfg], device=dev)
+        else:
+            st.vimu = wp.array(np.column_stack([np.zeros((n, 2)), st.qd.numpy()[:, :1]]).astype(np.float32),
+                               dtype=wp.vec3, device=dev)
+
+    def _steps_split(self, fl: Fleet, st: State, cfg: Config, out: Output, slices, max_steps: int, graph_steps: int,
+                     block_dims: tuple[int, int]) -> None:
+        """Contacts and integration in separate launches; on CUDA chunks of steps are replayed
+        as one captured graph."""
+        dev = self.device
+        n, n_slices = slices.shape
+
+        def one_step():
+            wp.launch(contact_kernel, dim=(n, n_slices), inputs=[self.mesh.id, fl, st, cfg, slices], device=dev,
+                      block_dim=block_dims[0])
+            # small blocks: a few thousand vehicle threads must still reach every SM
+            wp.launch(step_kernel, dim=n, inputs=[fl, st, cfg, out, slices], device=dev, block_dim=block_dims[1])
+        chunk = max(1, int(graph_steps))
+        done = 0
+        graph = None
+        while done < max_steps:
+            if dev.is_cuda and max_steps - done >= chunk:
+                if graph is None:
+                    with wp.ScopedCapture(device=dev) as cap:
+                        for _ in range(chunk):
+                            one_step()
+                    graph = cap.graph
+                wp.capture_launch(graph)
+                done += chunk
+            else:
+                one_step()
+                done += 1

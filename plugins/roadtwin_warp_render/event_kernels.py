@@ -13,7 +13,7 @@ the device and takes frames that are already there (a ``wp.array`` of shape (H, 
 3. ``emit``: each thread writes its events there and moves its state (reference, last event);
 4. a stable radix sort by time (the reference's ``argsort(kind="stable")``), then a gather.
 
-Standalone (numpy + warp only, loadable by path), its own warp module so the renderer's ray
+Standalone (numpy + warp only), its own warp module so the renderer's ray
 casting kernels are not compiled for it; no backward pass (nothing here is differentiated).
 """
 from __future__ import annotations

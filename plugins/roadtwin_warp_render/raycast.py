@@ -1,7 +1,6 @@
 """Ray-cast G-buffer and textured shading on warp: numpy + warp only.
 
-This file imports nothing but numpy and warp, so ``bench/render.py`` loads it by path on a GPU
-machine with no USD (and no roadtwin) installed. Everything is plain arrays:
+This file imports nothing but numpy and warp (no USD). Everything is plain arrays:
 
 - the scene is one ``wp.Mesh`` of all triangles (roads, defects, lane markings) with per-face
   arrays: semantic class id, instance id (0 = not a defect), material id and the texture

@@ -1,8 +1,8 @@
 """Perception data from composed towns: cameras and poses, the renderer contract's data
-(``RenderMesh`` in, ``Frame`` out), an event camera simulator, dataset writers and a torch
-``Dataset`` over their output. Renderers themselves are plugins
-(``roadtwin_register_renderers``); ``roadtwin render`` (``roadtwin_core.cli_render``) ties it
-together. Nothing here imports USD at module level (``stage_lanes`` does, when called) or torch
+(``RenderMesh`` in, ``Frame`` out), an event camera simulator and a torch ``Dataset`` over a
+render's output. Renderers themselves are plugins (``roadtwin_register_renderers``); what
+``roadtwin render`` does (frame jobs, dataset writers) is ``roadtwin_core.apps.render``. Nothing
+here imports USD at module level (``stage_lanes`` does, when called) or torch
 (``roadtwin_core.render.dataset`` does, when its class is first used).
 """
 from .cameras import (Camera, Intrinsics, Lane, StereoCamera, lane_trajectory, load_poses_file, look_from,
@@ -11,13 +11,12 @@ from .events import EventSimulator, luminance
 from .frames import WEATHERS, Frame, RenderParams
 from .scene import (BASE_CLASSES, DEFAULT_MATERIAL, IGNORE_INDEX, MARKING_CLASS, GroundSampler, RenderMaterial,
                     RenderMesh, build_render_mesh, class_names, stage_lanes)
-from .writers import FORMATS, DatasetWriter, parse_formats, rle_decode, rle_encode, to_srgb8
+from .tonemap import to_srgb8
 
 __all__ = [
     "Camera", "Intrinsics", "Lane", "StereoCamera", "lane_trajectory", "load_poses_file", "look_from",
     "rotation_ypr", "sample_lane_poses", "EventSimulator", "luminance", "WEATHERS", "Frame", "RenderParams",
     "BASE_CLASSES", "DEFAULT_MATERIAL", "IGNORE_INDEX", "MARKING_CLASS", "GroundSampler", "RenderMaterial",
     "RenderMesh",
-    "build_render_mesh", "class_names", "stage_lanes", "FORMATS", "DatasetWriter", "parse_formats",
-    "rle_decode", "rle_encode", "to_srgb8",
+    "build_render_mesh", "class_names", "stage_lanes", "to_srgb8",
 ]

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+__all__ = ["RenderDataset"]
+
 _FILES = {"image": "rgb", "image_right": "rgb_right", "semantic": "semantic", "instance": "instance",
           "depth": "depth", "normal": "normal", "disparity": "disparity", "disparity_noc": "disparity_noc"}
 

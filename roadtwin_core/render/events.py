@@ -1,5 +1,4 @@
-"""An ESIM / v2e-style event camera simulated from consecutive rendered frames. numpy only (no
-other import, so the benchmark loads this file by path on a machine without roadtwin).
+"""An ESIM / v2e-style event camera simulated from consecutive rendered frames (numpy).
 
 Model, per pixel:
 

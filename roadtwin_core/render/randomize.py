@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import RoadtwinError
 from .cameras import Camera
 from .frames import RenderParams
-from .writers import to_srgb8
+from .tonemap import to_srgb8
 
 _STREAM_DRAW, _STREAM_NOISE = 0, 1
 

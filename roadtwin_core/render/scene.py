@@ -28,6 +28,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
+from ..geometry import MeshHeights
 from .cameras import Lane
 
 BASE_CLASSES = ("background", "driving", "junction", "sidewalk", "shoulder", "lane_marking")
@@ -245,55 +246,12 @@ def build_render_mesh(town, defect_types: Iterable[str] = ()) -> RenderMesh:
                       [c for c in classes if c in dtypes], source)
 
 
-class GroundSampler:
-    """Height of the topmost triangle under XY points (NaN off the mesh), for placing cameras a
-    fixed height above the road. A uniform grid over the triangles' XY bounding boxes (sorted
-    cell keys, numpy only: about 40 bytes a triangle, where a shapely STRtree of 1.8 M triangle
-    polygons took 1.5 GB), then a barycentric inside test and z."""
+class GroundSampler(MeshHeights):
+    """Height of the road under XY points, for placing cameras a fixed height above it
+    (:class:`~roadtwin_core.geometry.MeshHeights` of a render mesh on a 2 m grid)."""
 
     def __init__(self, mesh: RenderMesh, cell_m: float = 2.0):
-        tri = mesh.vertices[mesh.faces]
-        area = 0.5 * np.abs((tri[:, 1, 0] - tri[:, 0, 0]) * (tri[:, 2, 1] - tri[:, 0, 1])
-                            - (tri[:, 1, 1] - tri[:, 0, 1]) * (tri[:, 2, 0] - tri[:, 0, 0]))
-        self.tri = np.ascontiguousarray(tri[area > 1e-12])
-        self.cell = float(cell_m)
-        lo, hi = self.tri[:, :, :2].min(axis=1), self.tri[:, :, :2].max(axis=1)
-        self.origin = lo.min(axis=0) if len(lo) else np.zeros(2)
-        c0 = np.floor((lo - self.origin) / self.cell).astype(np.int64)
-        c1 = np.floor((hi - self.origin) / self.cell).astype(np.int64)
-        self.ny = int(c1[:, 1].max()) + 2 if len(c1) else 1
-        nx, ny = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
-        count = nx * ny
-        owner = np.repeat(np.arange(len(self.tri)), count)
-        k = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)
-        keys = (c0[owner, 0] + k % nx[owner]) * self.ny + c0[owner, 1] + k // nx[owner]
-        order = np.argsort(keys, kind="stable")
-        self.keys, self.owner = keys[order], owner[order].astype(np.int64)
-
-    def __call__(self, xy: np.ndarray) -> np.ndarray:
-        xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
-        out = np.full(len(xy), np.nan)
-        if not len(xy) or not len(self.tri):
-            return out
-        c = np.floor((xy - self.origin) / self.cell).astype(np.int64)
-        ok = (c >= 0).all(axis=1) & (c[:, 1] < self.ny)
-        q = np.where(ok, c[:, 0] * self.ny + c[:, 1], -1)
-        first, last = np.searchsorted(self.keys, q, "left"), np.searchsorted(self.keys, q, "right")
-        n = np.where(ok, last - first, 0)
-        pi = np.repeat(np.arange(len(xy)), n)
-        if not len(pi):
-            return out
-        ti = self.owner[np.repeat(first, n) + np.arange(len(pi)) - np.repeat(np.cumsum(n) - n, n)]
-        a, b, cc = self.tri[ti, 0], self.tri[ti, 1], self.tri[ti, 2]
-        p = xy[pi]
-        v0, v1, v2 = b[:, :2] - a[:, :2], cc[:, :2] - a[:, :2], p - a[:, :2]
-        den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-        beta = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
-        gamma = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-        inside = (beta >= -1e-9) & (gamma >= -1e-9) & (beta + gamma <= 1 + 1e-9)
-        z = a[:, 2] + beta * (b[:, 2] - a[:, 2]) + gamma * (cc[:, 2] - a[:, 2])
-        np.fmax.at(out, pi[inside], z[inside])
-        return out
+        super().__init__(mesh.vertices, mesh.faces, cell_m)
 
 
 def stage_lanes(stage_path: str | Path, kinds: Sequence[str] = ("driving",)) -> list[Lane]:

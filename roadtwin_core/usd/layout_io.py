@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 from ..errors import RoadtwinError
 from ..model import ComposeRules, FixedDefect, LaneMarking, RoadSegment, TownLayout
 from .checks import FaceBudget, check_points, open_stage
-from .stage import _array, new_stage, read_mesh, set_kind, write_mesh
+from .stage import _array, new_stage, read_mesh, safe_prim_name, set_kind, write_mesh
 
 SEGMENT_KIND = "roadtwin:segment:kind"
 CENTERLINE = "roadtwin:segment:centerline"
@@ -209,11 +208,6 @@ def _rule_value(name: str, value, kind: type, owner: str):
     raise RoadtwinError(f"{owner}: rule attribute {name} must be {want}, got {value!r}")
 
 
-def _safe_name(name: str) -> str:
-    name = re.sub(r"[^A-Za-z0-9_]", "_", name)
-    return name if name and not name[0].isdigit() else f"_{name}"
-
-
 def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
     """Write a layout file (used by the sample-town generator and importers)."""
     path = Path(path)
@@ -234,7 +228,7 @@ def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
     roads = UsdGeom.Xform.Define(stage, f"/{layout.name}/Roads").GetPrim()
     set_kind(roads, "group")
     for seg in layout.segments:
-        mesh = UsdGeom.Mesh.Define(stage, f"/{layout.name}/Roads/{_safe_name(seg.id)}")
+        mesh = UsdGeom.Mesh.Define(stage, f"/{layout.name}/Roads/{safe_prim_name(seg.id)}")
         write_mesh(mesh, seg.vertices, seg.faces)
         prim = mesh.GetPrim()
         set_kind(prim, "component")
@@ -252,7 +246,7 @@ def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
     if layout.fixed:
         set_kind(UsdGeom.Xform.Define(stage, f"/{layout.name}/Placements").GetPrim(), "group")
     for fd in layout.fixed:
-        prim = UsdGeom.Xform.Define(stage, f"/{layout.name}/Placements/{_safe_name(fd.name)}").GetPrim()
+        prim = UsdGeom.Xform.Define(stage, f"/{layout.name}/Placements/{safe_prim_name(fd.name)}").GetPrim()
         prim.CreateAttribute(PLACEMENT + "type", Sdf.ValueTypeNames.String, custom=True).Set(fd.defect_type)
         prim.CreateAttribute(PLACEMENT + "params", Sdf.ValueTypeNames.String, custom=True).Set(
             json.dumps(fd.params, sort_keys=True))
@@ -275,7 +269,7 @@ def _write_markings(stage: Usd.Stage, layout: TownLayout) -> None:
     set_kind(UsdGeom.Xform.Define(stage, f"/{layout.name}/Markings").GetPrim(), "group")
     names: set[str] = set()
     for m in layout.markings:
-        name = _safe_name(m.id)
+        name = safe_prim_name(m.id)
         if name in names:
             raise RoadtwinError(f"layout {layout.name}: two lane markings are both named {name!r} in USD")
         names.add(name)

@@ -188,10 +188,14 @@ def _array(attr, where: str, dtype, width: int = 0) -> np.ndarray:
     return arr
 
 
-def safe_prim_name(name: str) -> str:
-    """A valid USD prim name from any id (``road1_lane-1.0`` -> ``road1_lane_1_0``)."""
+def safe_prim_name(name: str, empty: str = "_", lead: str = "_") -> str:
+    """A valid USD prim name from any id or file stem (``road1_lane-1.0`` -> ``road1_lane_1_0``):
+    every character but ASCII letters, digits and ``_`` becomes ``_``; an empty result becomes
+    ``empty``; ``lead`` goes before a leading digit (``lead=""`` for a piece of a longer name)."""
     name = re.sub(r"[^A-Za-z0-9_]", "_", name)
-    return name if name and not name[0].isdigit() else f"_{name}"
+    if not name:
+        return empty
+    return f"{lead}{name}" if name[0].isdigit() else name
 
 
 def planar_st(vertices: np.ndarray) -> np.ndarray:

@@ -71,16 +71,18 @@ def comfort_bands_containing(aw: float) -> list[str]:
     return [label for label, lo, hi in ISO2631_BANDS if lo <= aw < hi or (lo == 0 and aw < hi)]
 
 
-def wk_analog() -> tuple[np.ndarray, np.ndarray]:
-    """Numerator and denominator polynomials (in s, highest power first) of Wk, K = 1."""
+def wk_analog(band_limit_lowpass: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Numerator and denominator polynomials (in s, highest power first) of Wk, K = 1: the
+    product of the standard's high-pass, (optional) low-pass, transition and step sections."""
     w = {k: 2 * math.pi * v for k, v in WK.items() if k.startswith("f")}
     q = WK
-    hh = ([1.0, 0.0, 0.0], [1.0, w["f1"] / q["q1"], w["f1"] ** 2])
-    hl = ([w["f2"] ** 2], [1.0, w["f2"] / q["q2"], w["f2"] ** 2])
-    ht = ([w["f4"] ** 2 / w["f3"], w["f4"] ** 2], [1.0, w["f4"] / q["q4"], w["f4"] ** 2])
-    hs = ([1.0, w["f5"] / q["q5"], w["f5"] ** 2], [1.0, w["f6"] / q["q6"], w["f6"] ** 2])
+    highpass = ([1.0, 0.0, 0.0], [1.0, w["f1"] / q["q1"], w["f1"] ** 2])
+    lowpass = ([w["f2"] ** 2], [1.0, w["f2"] / q["q2"], w["f2"] ** 2])
+    transition = ([w["f4"] ** 2 / w["f3"], w["f4"] ** 2], [1.0, w["f4"] / q["q4"], w["f4"] ** 2])
+    step = ([1.0, w["f5"] / q["q5"], w["f5"] ** 2], [1.0, w["f6"] / q["q6"], w["f6"] ** 2])
+    sections = (highpass, lowpass, transition, step) if band_limit_lowpass else (highpass, transition, step)
     b, a = np.array([1.0]), np.array([1.0])
-    for num, den in (hh, hl, ht, hs):
+    for num, den in sections:
         b, a = np.polymul(b, num), np.polymul(a, den)
     return b, a
 
@@ -93,20 +95,11 @@ def wk_magnitude(f: np.ndarray) -> np.ndarray:
 
 
 def wk_digital(fs: float) -> tuple[np.ndarray, np.ndarray]:
-    """Bilinear-transform Wk for sample rate fs (Hz)."""
+    """Bilinear-transform Wk for sample rate fs (Hz); the 100 Hz band limit only where fs can
+    represent it (see the module docs)."""
     from scipy import signal
 
-    w = {k: 2 * math.pi * v for k, v in WK.items() if k.startswith("f")}
-    q = WK
-    parts = [([1.0, 0.0, 0.0], [1.0, w["f1"] / q["q1"], w["f1"] ** 2]),
-             ([w["f4"] ** 2 / w["f3"], w["f4"] ** 2], [1.0, w["f4"] / q["q4"], w["f4"] ** 2]),
-             ([1.0, w["f5"] / q["q5"], w["f5"] ** 2], [1.0, w["f6"] / q["q6"], w["f6"] ** 2])]
-    if fs >= 2.4 * WK["f2"]:
-        parts.insert(1, ([w["f2"] ** 2], [1.0, w["f2"] / q["q2"], w["f2"] ** 2]))
-    b, a = np.array([1.0]), np.array([1.0])
-    for num, den in parts:
-        b, a = np.polymul(b, num), np.polymul(a, den)
-    return signal.bilinear(b, a, fs)
+    return signal.bilinear(*wk_analog(band_limit_lowpass=fs >= 2.4 * WK["f2"]), fs)
 
 
 def wk_weight(az: np.ndarray, fs: float) -> np.ndarray:

@@ -215,6 +215,51 @@ def step_road(length_m: float = 30.0, x_step: float = 10.0, height_m: float = 0.
     return grid_mesh(xs, ys, np.where(X >= x_step, height_m, 0.0), f"step {height_m} m")
 
 
+# ----------------------------------------------------------------------------- paths for the backends
+def resample_path(polyline: np.ndarray, ds: float = 0.5, heading_window_m: float = 2.0):
+    """Uniform-arclength resampling of a polyline, with a smoothed, unwrapped heading.
+
+    Every physics backend drives its vehicles along this same resampling, so that they follow
+    the same path to the bit. A straight 2-point path stays 2 points (exact). Returns
+    ``(xy (K,2), psi (K,), ds)``."""
+    pts = np.asarray(polyline, dtype=np.float64).reshape(-1, 2)
+    seg = np.diff(pts, axis=0)
+    keep = np.concatenate([[True], np.linalg.norm(seg, axis=1) > 1e-9])
+    pts = pts[keep]
+    if len(pts) < 2:
+        raise ValueError("path needs at least two distinct points")
+    seg = np.diff(pts, axis=0)
+    length = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(length)])
+    if len(pts) == 2:
+        psi = np.arctan2(seg[0, 1], seg[0, 0])
+        return pts.copy(), np.array([psi, psi]), float(cum[-1])
+    n = max(2, int(math.ceil(cum[-1] / ds)) + 1)
+    s = np.linspace(0.0, cum[-1], n)
+    xy = np.column_stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])])
+    step = s[1] - s[0]
+    half = max(1, int(round(heading_window_m / 2 / step)))
+    lo = np.clip(np.arange(n) - half, 0, n - 1)
+    hi = np.clip(np.arange(n) + half, 0, n - 1)
+    d = xy[hi] - xy[lo]
+    psi = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    return xy, psi, float(step)
+
+
+def resampled_path_at(xy: np.ndarray, psi: np.ndarray, ds: float, s: np.ndarray):
+    """Position (K,2), heading (K,) and heading change per meter (K,) at arclengths ``s`` of a
+    :func:`resample_path` result, exactly as the kernels evaluate it: linear inside, straight
+    beyond the ends (no turning there)."""
+    u = np.asarray(s, dtype=np.float64) / ds
+    k = np.clip(np.floor(u).astype(np.int64), 0, len(xy) - 2)
+    f = u - k
+    p = xy[k] + (xy[k + 1] - xy[k]) * f[:, None]
+    fc = np.clip(f, 0.0, 1.0)
+    yaw = psi[k] + (psi[k + 1] - psi[k]) * fc
+    dyaw = np.where((f >= 0.0) & (f <= 1.0), (psi[k + 1] - psi[k]) / ds, 0.0)
+    return p, yaw, dyaw
+
+
 # ----------------------------------------------------------------------------- towns
 def offset_polyline(poly: np.ndarray, d: float) -> np.ndarray:
     """Shift a polyline ``d`` meters to its left (vertex normals averaged over both segments)."""

@@ -26,10 +26,6 @@ file says ``extends = "default"``, in which case missing ones come from :data:`D
 Unknown keys, missing keys, NaN, non-positive masses/stiffnesses/lengths, impossible inertias or
 geometry, and a car that would sit on its bump stops raise :class:`RoadtwinError` with one line
 naming the file and the parameter.
-
-This module uses only the standard library and numpy (and roadtwin's error type when it is
-imported as part of the package), so ``bench/sweep.py`` can load it by file path on a machine
-without roadtwin installed.
 """
 from __future__ import annotations
 
@@ -40,11 +36,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-try:  # part of the roadtwin_core package
-    from ..errors import RoadtwinError
-except ImportError:  # loaded by file path (bench on a machine with only numpy + warp)
-    class RoadtwinError(Exception):  # type: ignore[no-redef]
-        """Stand-in for roadtwin_core.RoadtwinError when this file is loaded on its own."""
+from ..errors import RoadtwinError
+from ..params import check_params, field
 
 GRAVITY = 9.81  # m/s^2, as in the composed stages' physics scene
 
@@ -53,8 +46,10 @@ CORNERS = ("FL", "FR", "RL", "RR")
 
 def _f(default: float, unit: str, doc: str, *, positive: bool = True, lo: float | None = None,
        hi: float | None = None) -> Any:
-    return dataclasses.field(default=default, metadata={"unit": unit, "doc": doc, "positive": positive,
-                                                        "lo": lo, "hi": hi})
+    """A :func:`roadtwin_core.params.field` (bounds ``lo``/``hi``) with a unit, and > 0 unless
+    ``positive=False``."""
+    base = field(default, lo=lo, hi=hi, doc=doc)
+    return dataclasses.field(default=default, metadata={**base.metadata, "unit": unit, "positive": positive})
 
 
 @dataclass(frozen=True)
@@ -91,6 +86,14 @@ class VehicleParams:
     tire_width_m: float = _f(0.205, "m", "tread width", hi=1.5)
     tire_stiffness_n_per_m: float = _f(220000.0, "N/m", "radial stiffness")
     tire_damping_ns_per_m: float = _f(100.0, "N s/m", "radial damping", positive=False, lo=0.0)
+    # footprint (planning; optional in files, see FOOTPRINT_FIELDS)
+    tire_contact_length_m: float = _f(0.15, "m", "tire contact patch length (planning footprint)", hi=2.0)
+    body_length_m: float = _f(4.5, "m", "body length, bumper to bumper (planning footprint)", hi=30.0)
+    body_width_m: float = _f(1.8, "m", "body width (planning footprint; never narrower than the outer tire edges)",
+                             hi=5.0)
+    rear_overhang_m: float = _f(0.9, "m", "rear bumper behind the rear axle (planning footprint)", hi=10.0)
+    max_steer_rad: float = _f(0.6, "rad", "front wheel steering angle at full lock (planning footprint)",
+                              hi=1.5)
 
     # ------------------------------------------------------------------ derived quantities
     @property
@@ -141,6 +144,22 @@ class VehicleParams:
                 "cg_height": self.cg_height_m, "wheelbase": self.wheelbase_m,
                 "corners": [self.corner(i) for i in range(4)], "gravity": GRAVITY}
 
+    def footprint(self):
+        """The vehicle as planning sees it (:class:`roadtwin_core.planning.Footprint`).
+
+        Planning's wheel-level check puts each axle's wheels ``track/2`` either side of the
+        centreline with one track, so a car whose front and rear tracks differ is refused
+        rather than planned with the wrong wheel lines."""
+        from ..planning import Footprint
+
+        if abs(self.track_front_m - self.track_rear_m) > 1e-9:
+            raise RoadtwinError(f"vehicle {self.name}: planning needs track_front_m == track_rear_m "
+                                f"(got {self.track_front_m} and {self.track_rear_m})")
+        return Footprint(track_m=self.track_rear_m, wheelbase_m=self.wheelbase_m, tire_width_m=self.tire_width_m,
+                         tire_length_m=self.tire_contact_length_m, body_length_m=self.body_length_m,
+                         body_width_m=self.body_width_m, rear_overhang_m=self.rear_overhang_m,
+                         max_steer_rad=self.max_steer_rad)
+
     def quarter_car(self, corner: int = 0) -> "QuarterCarParams":
         """The 2-DOF quarter car of one corner (its static sprung load, spring, damper, tire)."""
         c = self.corner(corner)
@@ -170,6 +189,9 @@ class VehicleParams:
             if c["e_free"] <= 0:
                 raise RoadtwinError(f"{owner}: cg_height_m ({self.cg_height_m}) puts the CG below the free spring "
                                     f"position at {CORNERS[i]}: raise cg_height_m or stiffen the springs")
+        if self.body_length_m < self.wheelbase_m + self.rear_overhang_m:
+            raise RoadtwinError(f"{owner}: body_length_m ({self.body_length_m}) must cover rear_overhang_m + "
+                                f"wheelbase_m ({self.rear_overhang_m} + {self.wheelbase_m})")
         if self.stop_stiffness_n_per_m < max(self.spring_front_n_per_m, self.spring_rear_n_per_m):
             raise RoadtwinError(f"{owner}: stop_stiffness_n_per_m ({self.stop_stiffness_n_per_m}) must be at least "
                                 f"the spring rates: a travel stop softer than the spring is not a stop")
@@ -214,19 +236,25 @@ def _check_fields(obj: Any, owner: str) -> None:
         v = getattr(obj, f.name)
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise RoadtwinError(f"{owner}: {f.name} must be a number, got {v!r}")
-        v = float(v)
-        if not math.isfinite(v):
-            raise RoadtwinError(f"{owner}: {f.name} must be finite, got {v}")
-        meta = f.metadata
-        if meta.get("positive") and v <= 0:
-            raise RoadtwinError(f"{owner}: {f.name} must be > 0 ({meta['unit']}), got {v}")
-        if meta.get("lo") is not None and v < meta["lo"]:
-            raise RoadtwinError(f"{owner}: {f.name} must be >= {meta['lo']} ({meta['unit']}), got {v}")
-        if meta.get("hi") is not None and v > meta["hi"]:
-            raise RoadtwinError(f"{owner}: {f.name} must be <= {meta['hi']} ({meta['unit']}), got {v}")
+    check_params(obj, owner)          # finite, within lo/hi
+    for f in dataclasses.fields(obj):
+        if f.metadata.get("positive") and getattr(obj, f.name) <= 0:
+            raise RoadtwinError(f"{owner}: {f.name} must be > 0 ({f.metadata['unit']}), got {float(getattr(obj, f.name))}")
 
 
 DEFAULT_CAR = VehicleParams()
+
+# Planning-only parameters: a vehicle file may leave them out (the default car's values are used),
+# so vehicle files written before planning shared this description still load.
+FOOTPRINT_FIELDS = ("tire_contact_length_m", "body_length_m", "body_width_m", "rear_overhang_m", "max_steer_rad")
+
+PAPER_CAR_FILE = Path(__file__).with_name("paper_car.toml")
+
+
+def paper_car() -> VehicleParams:
+    """Zhang et al.'s planning vehicle (2.0 m track, 3.0 m wheelbase): ``paper_car.toml``,
+    the default of ``roadtwin plan``."""
+    return load_vehicle(PAPER_CAR_FILE)
 
 
 def default_vehicle() -> VehicleParams:
@@ -280,7 +308,7 @@ def vehicle_from_dict(data: dict, owner: str = "vehicle") -> VehicleParams | Qua
         raise RoadtwinError(f"{owner}: unknown parameter(s) {', '.join(unknown)} (known: {', '.join(names)})")
     if extends is not None and extends != "default":
         raise RoadtwinError(f"{owner}: extends must be \"default\", got {extends!r}")
-    missing = [n for n in names if n not in flat]
+    missing = [n for n in names if n not in flat and n not in FOOTPRINT_FIELDS]
     if missing and extends is None:
         raise RoadtwinError(f"{owner}: missing parameter(s) {', '.join(missing)} "
                             f"(give them all, or add extends = \"default\" to take the rest from the default car)")
@@ -322,6 +350,17 @@ def load_vehicle(path: str | Path) -> VehicleParams | QuarterCarParams:
     return vehicle_from_dict(data, owner)
 
 
+def load_full_vehicle(path: str | Path | None, default: VehicleParams) -> VehicleParams:
+    """The ``--vehicle FILE`` option of ``plan`` and ``sweep``: ``default`` without a file; a
+    quarter car is refused (both commands drive or plan the whole car)."""
+    if path is None:
+        return default
+    params = load_vehicle(path)
+    if not isinstance(params, VehicleParams):
+        raise RoadtwinError(f"vehicle file {path}: needs a full vehicle (model = \"full\"), not a quarter car")
+    return params
+
+
 def vehicle_to_toml(params: VehicleParams) -> str:
     """A complete, commented vehicle file (what ``default_car.toml`` is)."""
     groups = {"body": ("sprung_mass_kg", "roll_inertia_kgm2", "pitch_inertia_kgm2", "yaw_inertia_kgm2",
@@ -331,7 +370,8 @@ def vehicle_to_toml(params: VehicleParams) -> str:
                              "damper_rear_ns_per_m", "jounce_travel_m", "rebound_travel_m",
                              "stop_stiffness_n_per_m", "stop_damping_ns_per_m"),
               "tire": ("unsprung_mass_kg", "tire_radius_m", "tire_width_m", "tire_stiffness_n_per_m",
-                       "tire_damping_ns_per_m")}
+                       "tire_damping_ns_per_m"),
+              "footprint": FOOTPRINT_FIELDS}
     meta = {f.name: f.metadata for f in dataclasses.fields(params)}
     lines = [f'name = "{params.name}"', 'model = "full"', ""]
     for g, names in groups.items():

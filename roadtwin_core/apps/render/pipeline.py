@@ -18,8 +18,11 @@ from typing import Any
 
 import numpy as np
 
-from .cameras import Camera, StereoCamera
-from .frames import Frame, RenderParams
+from ...errors import RoadtwinError
+from ...render import Camera, Frame, RenderParams, StereoCamera, to_srgb8
+from ...render.randomize import apply_sensor
+
+__all__ = ["FrameJob", "FrameOut", "RenderContext", "forget", "render_chunk", "render_job"]
 
 _PREPARED: dict[str, Any] = {}
 DEFECT_CLASSES = ("pothole", "crack")
@@ -84,11 +87,6 @@ def render_chunk(ctx: RenderContext, jobs: list[FrameJob]) -> list[FrameOut]:
 
 
 def render_job(ctx: RenderContext, scene, job: FrameJob) -> FrameOut:
-    from .randomize import apply_sensor
-    from .writers import to_srgb8
-
-    from ..errors import RoadtwinError
-
     kwargs = {"look": job.look} if job.look is not None else {}
     try:
         frame = next(iter(ctx.renderer.render(scene, [job.camera], job.params, **kwargs)))
@@ -110,7 +108,7 @@ def render_job(ctx: RenderContext, scene, job: FrameJob) -> FrameOut:
     if ctx.class_map is not None:
         ego = None
         if job.lane_xy is not None and ctx.class_map.ego:
-            from .ego_lane import ego_lane_mask
+            from ...render.ego_lane import ego_lane_mask
 
             surface = (frame.depth > 0) & (frame.semantic != 0) & (frame.semantic != 255)
             ego = ego_lane_mask(left, frame.depth, job.lane_xy, ctx.lane_width_m, surface=surface)

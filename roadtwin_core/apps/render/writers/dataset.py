@@ -1,0 +1,156 @@
+"""The dataset writer: rendered frames -> files the tools of the field load directly.
+
+One output directory (the CLI builds it in a temporary directory and renames it into place)::
+
+    images/000000.png                 left RGB, 8-bit sRGB (every format points here)
+    images_right/000000.png           right RGB (stereo)
+    kitti/training/image_2/000000_10.png, image_3/      KITTI-2015 stereo layout (hard links)
+    kitti/training/disp_occ_0/000000_10.png             uint16 disparity * 256, 0 = invalid
+    kitti/training/disp_noc_0/000000_10.png             same, occluded pixels set to 0
+    kitti/training/calib_cam_to_cam/000000.txt          P_rect_02 / P_rect_03 (3x4)
+    mmseg/img_dir/train/000000.png, mmseg/ann_dir/train/000000.png   uint8 class ids, 255 ignore
+                                      (images are .jpg when a sensor model wrote JPEG bytes)
+    coco/annotations/instances_train.json               COCO instances, RLE masks, file_name
+                                                        relative to the output directory
+    instance/000000.png               uint16 instance ids (0 = none; ids in meta.json "instances")
+    depth/000000.npy, .png            float32 z-depth in metres (0 = no hit); colour-mapped view
+    normal/000000.npy, .png           float32 unit normals, camera frame (OpenCV axes); RGB view
+    events/events.h5                  x, y (uint16), t (int64 microseconds), p (int8 +-1)
+    meta.json                         intrinsics, poses, class map, instances, files per frame
+    preview.png                       contact sheet
+
+This module writes what every render has (images, meta.json, the contact sheet, events) and hands
+each frame to the writers of the chosen formats (``registry.WRITERS``, one module per format).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from ....errors import RoadtwinError
+from ....render import IGNORE_INDEX, Frame, Intrinsics, to_srgb8
+from .events import write_events
+from .images import (colorize_instances, colorize_labels, colorize_normals, colorize_scalar, palette,
+                     write_contact_sheet, write_image)
+from .registry import WRITERS
+
+__all__ = ["DatasetWriter"]
+
+
+@dataclass
+class DatasetWriter:
+    root: Path
+    formats: list[str]
+    intrinsics: Intrinsics
+    classes: list[str]
+    instances: list[dict]
+    baseline: float | None = None
+    min_instance_pixels: int = 4
+    preview_frames: int = 6
+    categories: list[str] = field(default_factory=list)   # COCO categories (defect types), ids 1..
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.root = Path(self.root)
+        self.frames_meta: list[dict] = []
+        self.previews: list[dict[str, np.ndarray]] = []
+        self.events_meta: dict | None = None
+        self.palette = palette(len(self.classes), self.classes)
+        # every defect type is a COCO category, seen or not (stable ids across renders)
+        self.categories = list(self.categories) or sorted({i["type"] for i in self.instances})
+        (self.root / "images").mkdir(parents=True, exist_ok=True)
+        if self.baseline:
+            (self.root / "images_right").mkdir(parents=True, exist_ok=True)
+        self.writers = [writer(self) for name, writer in WRITERS.items() if name in self.formats]
+
+    def add(self, frame: Frame, rgb8: np.ndarray | None = None, image_bytes: bytes | None = None,
+            rgb8_right: np.ndarray | None = None, image_bytes_right: bytes | None = None,
+            record: dict | None = None) -> None:
+        """Write one frame. ``rgb8`` / ``image_bytes``: the image as the camera recorded it (8-bit
+        sRGB, and its JPEG bytes when a sensor model encoded it: written as ``.jpg`` unchanged);
+        default: ``frame.rgb`` tone-mapped, as PNG. ``record``: extra per-frame metadata."""
+        k = len(self.frames_meta)
+        stem = f"{k:06d}"
+        files: dict[str, str] = {}
+        root = self.root
+        if (frame.rgb is None and rgb8 is None) or frame.depth is None or frame.semantic is None:
+            raise RoadtwinError("renderer returned a frame without rgb, depth or semantic")
+        rgb8 = to_srgb8(frame.rgb) if rgb8 is None else rgb8
+        ext = ".jpg" if image_bytes is not None else ".png"
+        write_image(root / "images" / f"{stem}{ext}", rgb8, image_bytes)
+        files["rgb"] = f"images/{stem}{ext}"
+        if self.baseline:
+            if (frame.rgb_right is None and rgb8_right is None) or frame.disparity is None or frame.occluded is None:
+                raise RoadtwinError("renderer returned a stereo frame without right image or disparity")
+            rgb8_right = to_srgb8(frame.rgb_right) if rgb8_right is None else rgb8_right
+            ext_r = ".jpg" if image_bytes_right is not None else ".png"
+            write_image(root / "images_right" / f"{stem}{ext_r}", rgb8_right, image_bytes_right)
+            files["rgb_right"] = f"images_right/{stem}{ext_r}"
+        extra: dict = {}
+        for w in self.writers:
+            extra.update(w.add(k, stem, frame, files))
+        entry = {"index": k, "stem": stem, "cam_to_world": frame.camera.cam_to_world.tolist(), "files": files}
+        if frame.time_s is not None:
+            entry["time_s"] = frame.time_s
+        if frame.right_camera is not None:
+            entry["right_cam_to_world"] = frame.right_camera.cam_to_world.tolist()
+        entry.update(extra)
+        entry.update(record or {})
+        self.frames_meta.append(entry)
+        if len(self.previews) < self.preview_frames:
+            self.previews.append(self._thumbs(frame, rgb8))
+
+    def _thumbs(self, frame: Frame, rgb8: np.ndarray) -> dict[str, np.ndarray]:
+        valid = frame.depth > 0
+        t = {"rgb": rgb8, "semantic": colorize_labels(frame.semantic, self.palette),
+             "depth": colorize_scalar(frame.depth, valid, 1.0, 200.0)}
+        if frame.instance is not None:
+            t["instance"] = colorize_instances(frame.instance.astype(np.int64))
+        if frame.normal is not None:
+            t["normal"] = colorize_normals(frame.normal)
+        if frame.disparity is not None:
+            d = frame.disparity
+            t["disparity"] = colorize_scalar(d, valid & ~frame.occluded, 0.5, max(float(d.max()), 1.0))
+        return t
+
+    def write_events(self, events: dict[str, np.ndarray], times: np.ndarray, poses: Sequence[np.ndarray],
+                     size: tuple[int, int], params: dict) -> None:
+        self.events_meta = write_events(self.root, events, times, poses, size, params)
+
+    def finish(self, extra: dict | None = None) -> dict:
+        root = self.root
+        for w in self.writers:
+            w.finish()
+        meta = {
+            "format": "roadtwin-render/1",
+            "conventions": {
+                "world": "Z up, metres (the town's frame)",
+                "camera": "OpenCV: x right, y down, z forward; cam_to_world maps camera to world coordinates",
+                "pixels": "u = fx X/Z + cx, v = fy Y/Z + cy, pixel centres at integer coordinates",
+                "depth": "z-depth along the optical axis in metres, float32, 0 = no hit",
+                "normal": "unit surface normal in camera coordinates facing the camera, float32, 0 = no hit",
+                "disparity": "left view, f*B/Z pixels; KITTI PNG uint16 = disparity*256, 0 = invalid; "
+                             "disp_noc_0 also 0 where the point is hidden from the right camera",
+                "semantic": f"uint8 class ids (see classes), {IGNORE_INDEX} = ignore",
+                "instance": "uint16 instance ids, 0 = none (see instances)",
+                "rgb": "8-bit sRGB of linear radiance through 1 - exp(-x)",
+            },
+            "intrinsics": self.intrinsics.as_dict(),
+            "stereo": {"baseline_m": self.baseline} if self.baseline else None,
+            "formats": self.formats,
+            "classes": [{"id": i, "name": n} for i, n in enumerate(self.classes)],
+            "ignore_index": IGNORE_INDEX,
+            "coco_categories": [{"id": i + 1, "name": n} for i, n in enumerate(self.categories)],
+            "instances": self.instances,
+            "frames": self.frames_meta,
+            "events": self.events_meta,
+            **self.info, **(extra or {}),
+        }
+        (root / "meta.json").write_text(json.dumps(meta, indent=1))
+        if self.previews:
+            write_contact_sheet(root / "preview.png", self.previews)
+        return meta
