@@ -12,8 +12,6 @@ from typing import Iterator
 
 from .errors import RoadtwinError
 
-__all__ = ["atomic_output_dir", "atomic_write_bytes", "make_parent", "remove_stale"]
-
 
 @contextlib.contextmanager
 def atomic_output_dir(outdir: str | Path):
