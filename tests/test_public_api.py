@@ -19,15 +19,9 @@ CORE = REPO / "roadtwin_core"
 PUBLIC_MODULES = {"roadtwin_core", "roadtwin_core.geometry", "roadtwin_core.remesh", "roadtwin_core.atomic",
                   "roadtwin_core.planning", "roadtwin_core.vehicle", "roadtwin_core.render", "roadtwin_core.usd"}
 
-# Known violations, each (plugin file, module, name), to be fixed by the file's owner: the plugin
-# imports the name from the public module instead, or the module lists it in __all__. The list
-# only shrinks: an entry that is no longer a violation fails test_allowlist_is_current.
-KNOWN_VIOLATIONS = {
-    # lidar/stereo: import these from roadtwin_core.usd (they are in its __all__)
-    *{("plugins/roadtwin_lidar/__init__.py", "roadtwin_core.usd.stage", n)
-      for n in ("apply_labels", "new_stage", "read_mesh", "set_attrs", "set_kind", "write_mesh")},
-    ("plugins/roadtwin_stereo/__init__.py", "roadtwin_core.usd.library", "write_defect_asset"),
-}
+# Known violations, each (plugin file, module, name): none left. Should one ever be needed, the
+# list only shrinks: an entry that is no longer a violation fails test_allowlist_is_current.
+KNOWN_VIOLATIONS: set[tuple[str, str, str]] = set()
 
 
 def core_imports_of(path: Path) -> list[tuple[str, str]]:

@@ -197,7 +197,7 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
 
     from roadtwin_core.atomic import atomic_files
     from roadtwin_core.usd import safe_prim_name
-    from roadtwin_core.usd.stage import apply_labels, new_stage, set_attrs, set_kind, write_mesh
+    from roadtwin_core.usd import apply_labels, new_stage, set_attrs, set_kind, write_mesh
 
     path = Path(path)
     name = safe_prim_name(surface.name, empty="surface", lead="s")
@@ -227,7 +227,7 @@ def read_surface_asset(path: str | Path) -> LidarSurface:
     holds one triangle mesh) as a :class:`LidarSurface`."""
     from pxr import Usd, UsdGeom
 
-    from roadtwin_core.usd.stage import read_mesh
+    from roadtwin_core.usd import read_mesh
 
     path = Path(path)
     if not path.exists():

@@ -195,7 +195,7 @@ class StereoDefects:
         import cv2
 
         from roadtwin_core.atomic import atomic_output_dir
-        from roadtwin_core.usd.library import write_defect_asset
+        from roadtwin_core.usd import write_defect_asset
 
         paths = []
         with atomic_output_dir(out) as tmp:
