@@ -10,12 +10,18 @@ vertices, 0 on a flat road with its defects filled in)::
 
 so the vibration degree of a crossing against its twin run is, at every sample,
 ``g = depth * sqrt((K_WX / v)^2 + 0.1 (K_AZ v)^2)`` and the Wk-weighted aw of a constant is 0.
+
+``FakeRenderer``: sees the world as the plane z = 0 (whatever the scene holds): a pixel whose ray
+meets the plane in front of the camera gets class ``driving``, z-depth from the ray-plane
+intersection, normal (0, 0, 1) in camera axes and grey ``rgb = GROUND``; other pixels are sky
+(class 0, depth 0, ``rgb = SKY``). Stereo cameras get the right view and ``f * B / Z``.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from roadtwin_core import PluginManager, hookimpl
+from roadtwin_core import PluginManager, RendererBase, hookimpl
+from roadtwin_core.render import Frame, RenderParams, StereoCamera
 from roadtwin_core.vehicle import GRAVITY, SimParams, Traces
 
 K_AZ = 2.0
@@ -58,17 +64,63 @@ class FakePhysics:
                             "imu_dt": dt_imu, "mode": "full", "triangles": int(len(road_mesh.faces))})
 
 
-class _FakePhysicsPlugin:
-    def __init__(self, backend: FakePhysics) -> None:
-        self.backend = backend
+GROUND, SKY = 0.25, 0.8
+
+
+def plane_view(camera) -> tuple[np.ndarray, np.ndarray]:
+    """z-depth (H, W) of the plane z = 0 seen by ``camera`` (0 = sky) and the hit mask."""
+    d, o = camera.rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -o[2] / d[..., 2]
+    hit = np.isfinite(t) & (t > 0)
+    zdepth = np.where(hit, t * (d @ camera.rotation[:, 2]), 0.0)
+    return zdepth.astype(np.float32), hit
+
+
+class FakeRenderer(RendererBase):
+    name = "fake"
+    description = "the plane z = 0 in closed form, for tests (no ray tracing)"
+    Params = RenderParams
+
+    def __init__(self) -> None:
+        self.frames = 0
+
+    def render(self, scene, cameras, params=None, *, look=None):
+        driving = list(scene.classes).index("driving")
+        for i, cam in enumerate(cameras):
+            left = cam.left if isinstance(cam, StereoCamera) else cam
+            depth, hit = plane_view(left)
+            rgb = np.where(hit[..., None], GROUND, SKY).astype(np.float32) * np.ones(3, np.float32)
+            normal = np.where(hit[..., None], left.rotation.T @ np.array([0.0, 0.0, 1.0]), 0.0).astype(np.float32)
+            frame = Frame(index=i, camera=left, rgb=rgb, depth=depth, normal=normal,
+                          semantic=np.where(hit, driving, 0).astype(np.uint8),
+                          instance=np.zeros(depth.shape, np.int32))
+            if isinstance(cam, StereoCamera):
+                k = left.intrinsics
+                frame.right_camera = cam.right
+                frame.rgb_right = rgb.copy()
+                with np.errstate(divide="ignore"):
+                    frame.disparity = np.where(hit, k.fx * cam.baseline / np.where(hit, depth, 1), 0).astype(np.float32)
+                frame.occluded = np.zeros(depth.shape, bool)
+            self.frames += 1
+            yield frame
+
+
+class _FakePlugin:
+    def __init__(self, backend: FakePhysics, renderer: FakeRenderer) -> None:
+        self.backend, self.renderer = backend, renderer
 
     @hookimpl
     def roadtwin_register_physics_backends(self, register):
         register(self.backend)
 
+    @hookimpl
+    def roadtwin_register_renderers(self, register):
+        register(self.renderer)
 
-def fake_plugin_manager(backend: FakePhysics | None = None) -> PluginManager:
+
+def fake_plugin_manager(backend: FakePhysics | None = None, renderer: FakeRenderer | None = None) -> PluginManager:
     """A plugin manager holding only the fakes (no entry points)."""
     pm = PluginManager(load_entry_points=False)
-    pm.register(_FakePhysicsPlugin(backend or FakePhysics()), name="fakes")
+    pm.register(_FakePlugin(backend or FakePhysics(), renderer or FakeRenderer()), name="fakes")
     return pm
