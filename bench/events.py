@@ -4,8 +4,8 @@ renderer uses for CUDA frames) and of the numpy reference, at 640x480. Not a tes
     python3 bench/events.py --device cuda            # GPU: frames already on the device
     .venv/bin/python bench/events.py --device cpu --frames 20
 
-Standalone (numpy + warp): loads ``plugins/roadtwin_warp_render/event_kernels.py`` and
-``roadtwin_core/render/events.py`` by file path. Input: a periodic synthetic drive made on the
+It imports the roadtwin package (installed, or a checkout on ``PYTHONPATH=.:plugins``): the warp
+event camera of the renderer plugin and the numpy reference of ``roadtwin_core.render.events``. Input: a periodic synthetic drive made on the
 device (``--cycle`` frames of a textured scene under a drifting sinusoidal grating and a moving
 bright bar, at ``--rate`` Hz), so the timed loop reads frames where a renderer would have left
 them. Figures: ``device`` (events stay on the device: the GPU path's own speed), ``host`` (each

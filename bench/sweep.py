@@ -5,9 +5,9 @@ the warp backend (CPU or CUDA) and the pybullet backend on the same runs.
     .venv/bin/python bench/sweep.py --vehicles 16 --seconds 3
     python3 bench/sweep.py --device cuda --vehicles 4096 --mesh town01_like.npz
 
-Standalone: it loads ``plugins/roadtwin_warp_physics/kernels.py``, ``plugins/roadtwin_pybullet/sim.py``
-and ``roadtwin_core/vehicle/vehicle.py`` by file path, so it runs on a machine with only numpy +
-warp (no USD, no pybullet, no roadtwin install; pybullet is then skipped). ``--mesh FILE.npz``
+It imports the roadtwin package (installed, or a checkout on ``PYTHONPATH=.:plugins``): the
+physics modules themselves, not copies, so it needs numpy, scipy, pluggy and warp (pybullet is
+skipped when absent). ``--mesh FILE.npz``
 (arrays ``vertices``, ``faces``) is loaded if it exists, else a synthetic Town01-sized road
 network is generated with numpy and saved there: a 410 m x 340 m grid of 8 m wide two-lane roads
 (6 east-west, 5 north-south) on a 0.2 m x 0.2 m height grid (about 1.6 M triangles) with an
