@@ -16,15 +16,36 @@ What each kind of plugin object must provide is in :mod:`roadtwin_core.contracts
 are re-exported here). Every other module is private to the framework and may change without
 notice; ``tests/test_public_api.py`` checks that the plugins keep to this.
 """
-from .contracts import (DefectType, Exporter, LayoutImporter, Merger, PhysicsBackend, Planner, Reconstructor,
-                        Renderer, RendererBase, SurfaceSource)
-from .errors import RoadtwinError
-from .model import (MARKING_TYPES, ComposeRules, DefectModel, FixedDefect, LaneMarking, MergedSegment, Placement,
-                    RoadSegment, TownLayout, polygon_area, triangle_areas)
-from .params import apply_params, check_params, describe_params, field, make_params
-from .plugins import PluginManager, get_plugin_manager, hookimpl, reset_plugin_manager
-from .surface import (FlatSurface, GridSurface, SampledSurface, SumSurface, SurfaceModel,
-                      iso8608_surface, parse_surface)
+import importlib
+
+# Names load on first use (PEP 562), so importing one public module (e.g. the physics kernels'
+# ``roadtwin_core.vehicle`` on a GPU machine with only numpy + warp) does not pull in shapely,
+# scipy and pluggy through the data model, surfaces and plugin manager.
+_WHERE = {
+    **dict.fromkeys(("DefectType", "Exporter", "LayoutImporter", "Merger", "PhysicsBackend", "Planner",
+                     "Reconstructor", "Renderer", "RendererBase", "SurfaceSource"), "contracts"),
+    "RoadtwinError": "errors",
+    **dict.fromkeys(("MARKING_TYPES", "ComposeRules", "DefectModel", "FixedDefect", "LaneMarking", "MergedSegment",
+                     "Placement", "RoadSegment", "TownLayout", "polygon_area", "triangle_areas"), "model"),
+    **dict.fromkeys(("apply_params", "check_params", "describe_params", "field", "make_params"), "params"),
+    **dict.fromkeys(("PluginManager", "get_plugin_manager", "hookimpl", "reset_plugin_manager"), "plugins"),
+    **dict.fromkeys(("FlatSurface", "GridSurface", "SampledSurface", "SumSurface", "SurfaceModel",
+                     "iso8608_surface", "parse_surface"), "surface"),
+}
+
+
+def __getattr__(name: str):
+    where = _WHERE.get(name)
+    if where is None:
+        raise AttributeError(f"module 'roadtwin_core' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{where}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_WHERE))
+
 
 __version__ = "0.1.0"
 
