@@ -34,7 +34,7 @@ from ..markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
 from .looks import write_looks
 from .stage import (author_api_over, author_attrs, author_labels, author_mesh_geometry, author_uniform, define_prim, lane_st,
-                    new_layer, new_stage, planar_st, safe_prim_name, set_attrs, set_kind)
+                    new_layer, planar_st, safe_prim_name)
 
 LAYERS = ("looks", "semantics", "physics", "markings", "defects", "roads")
 VARIANT_KINDS = ("driving", "junction")  # the surfaces the root's roadMaterial variant set switches
@@ -234,10 +234,10 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
     looks.Save()
 
     town_path = outdir / "town.usda"
-    town = new_stage(town_path, lay.name, doc)
-    town.GetRootLayer().subLayerPaths = [f"./layers/{n}.usda" for n in LAYERS] + [f"./{parts.layout_file}"]
-    top = town.OverridePrim(Sdf.Path(root))
-    set_kind(top, "assembly")
-    set_attrs(top, "roadtwin:compose", parts.compose_info)
-    town.GetRootLayer().Save()
+    town = new_layer(town_path, lay.name, doc)  # a layer, not a stage: a stage would compose the whole town here
+    town.subLayerPaths = [f"./layers/{n}.usda" for n in LAYERS] + [f"./{parts.layout_file}"]
+    top = Sdf.CreatePrimInLayer(town, Sdf.Path(root))
+    top.kind = "assembly"
+    author_attrs(top, "roadtwin:compose", parts.compose_info)
+    town.Save()
     return town_path
