@@ -83,32 +83,47 @@ def define_material(stage: Usd.Stage, root: str, spec: MaterialSpec) -> UsdShade
     return mat
 
 
-def _bind(stage: Usd.Stage, root: str, bindings: list[Binding], known: set[str]) -> None:
+def _bind(layer: Sdf.Layer, root: str, bindings: list[Binding], known: set[str], prefix: Sdf.Path | None = None) -> None:
+    """What ``MaterialBindingAPI.Apply(prim).Bind(material)`` writes, at the Sdf level: an over
+    applying the API with an explicit ``material:binding`` target (under ``prefix``, a variant)."""
     for prim_path, name in bindings:
         if name not in known:
             raise RoadtwinError(f"material {name!r} bound to {prim_path} was not written by the texture generator "
                                 f"(known: {', '.join(sorted(known))})")
-        prim = stage.OverridePrim(Sdf.Path(prim_path))
-        UsdShade.MaterialBindingAPI.Apply(prim).Bind(UsdShade.Material(stage.GetPrimAtPath(material_path(root, name))))
+        path = Sdf.Path(prim_path)
+        if prefix is not None:
+            path = path.ReplacePrefix(path.GetPrefixes()[0], prefix)
+        spec = Sdf.CreatePrimInLayer(layer, path)
+        ops = spec.GetInfo("apiSchemas")
+        spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(prependedItems=list(ops.prependedItems) + ["MaterialBindingAPI"]))
+        rel = Sdf.RelationshipSpec(spec, UsdShade.Tokens.materialBinding, False)
+        rel.targetPathList.explicitItems = [Sdf.Path(material_path(root, name))]
 
 
-def write_looks(stage: Usd.Stage, root: str, specs: dict[str, MaterialSpec], bindings: list[Binding],
+def write_looks(layer: Sdf.Layer, root: str, specs: dict[str, MaterialSpec], bindings: list[Binding],
                 variants: dict[str, list[Binding]], default_variant: str) -> None:
     """Materials (sorted by name), direct bindings, then the ``roadMaterial`` variant set on the
-    root prim with its own bindings per variant (``default_variant`` selected)."""
+    root prim with its own bindings per variant (``default_variant`` selected).
+
+    The few materials go through the UsdShade API on a stage opened for them alone; the bindings
+    (one per segment, defect piece and marking: tens of thousands) are authored at the Sdf level
+    in one change block once that stage is gone, so nothing recomposes after each edit."""
+    stage = Usd.Stage.Open(layer)
     UsdGeom.Scope.Define(stage, f"{root}/Looks")
     for name in sorted(specs):
         define_material(stage, root, specs[name])
+    del stage
     known = set(specs)
-    _bind(stage, root, bindings, known)
-    if variants:
-        vset = stage.GetPrimAtPath(root).GetVariantSets().AddVariantSet(ROAD_MATERIAL_SET)
-        for variant in variants:
-            vset.AddVariant(variant)
-            vset.SetVariantSelection(variant)
-            with vset.GetVariantEditContext():
-                _bind(stage, root, variants[variant], known)
-        vset.SetVariantSelection(default_variant)
+    with Sdf.ChangeBlock():
+        _bind(layer, root, bindings, known)
+        if variants:
+            top = layer.GetPrimAtPath(root)
+            vset = Sdf.VariantSetSpec(top, ROAD_MATERIAL_SET)
+            top.variantSetNameList.prependedItems = [ROAD_MATERIAL_SET]
+            for variant in variants:
+                Sdf.VariantSpec(vset, variant)
+                _bind(layer, root, variants[variant], known, Sdf.Path(root).AppendVariantSelection(ROAD_MATERIAL_SET, variant))
+            top.variantSelections[ROAD_MATERIAL_SET] = default_variant
 
 
 __all__ = ["ROAD_MATERIAL_SET", "define_material", "material_path", "write_looks"]

@@ -104,19 +104,52 @@ _TYPES = {bool: Sdf.ValueTypeNames.Bool, int: Sdf.ValueTypeNames.Int, float: Sdf
           str: Sdf.ValueTypeNames.String}
 
 
+def _typed(value: Any) -> tuple[Any, Any]:
+    """(value type, value) of a custom attribute: string lists -> string[], other lists -> double[]."""
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
+        return Sdf.ValueTypeNames.StringArray, Vt.StringArray(list(value))
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return Sdf.ValueTypeNames.DoubleArray, Vt.DoubleArray(np.asarray(value, dtype=np.float64).ravel().tolist())
+    if isinstance(value, (np.floating, np.integer)):
+        return _TYPES[float if isinstance(value, np.floating) else int], value.item()
+    return _TYPES[type(value)], value
+
+
 def set_attrs(prim: Usd.Prim, namespace: str, values: dict[str, Any]) -> None:
     """Custom attributes ``namespace:key`` with units in the key (``depthM``); lists become arrays."""
     for key, value in values.items():
-        name = f"{namespace}:{key}"
-        if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
-            prim.CreateAttribute(name, Sdf.ValueTypeNames.StringArray, custom=True).Set(Vt.StringArray(list(value)))
-        elif isinstance(value, (list, tuple, np.ndarray)):
-            arr = np.asarray(value, dtype=np.float64).ravel()
-            prim.CreateAttribute(name, Sdf.ValueTypeNames.DoubleArray, custom=True).Set(Vt.DoubleArray(arr.tolist()))
-        elif isinstance(value, (np.floating, np.integer)):
-            prim.CreateAttribute(name, _TYPES[float if isinstance(value, np.floating) else int], custom=True).Set(value.item())
-        else:
-            prim.CreateAttribute(name, _TYPES[type(value)], custom=True).Set(value)
+        type_name, typed = _typed(value)
+        prim.CreateAttribute(f"{namespace}:{key}", type_name, custom=True).Set(typed)
+
+
+def author_attrs(spec: Sdf.PrimSpec, namespace: str, values: dict[str, Any]) -> None:
+    """:func:`set_attrs` at the Sdf level (same specs), for writers that author thousands of prims."""
+    for key, value in values.items():
+        type_name, typed = _typed(value)
+        Sdf.AttributeSpec(spec, f"{namespace}:{key}", type_name, Sdf.VariabilityVarying, True).default = typed
+
+
+def define_prim(layer: Sdf.Layer, path: str, type_name: str = "", kind: str | None = None) -> Sdf.PrimSpec:
+    """What ``Stage.DefinePrim`` (or ``UsdGeom.Xxx.Define``) + :func:`set_kind` write into a
+    layer of its own, at the Sdf level: a ``def`` spec, and ancestors that are only overs become
+    typeless ``def`` s. Thousands of prims need no stage to recompose. Call inside ``Sdf.ChangeBlock``."""
+    spec = Sdf.CreatePrimInLayer(layer, Sdf.Path(path))
+    parent = spec
+    while parent and parent.path != Sdf.Path.absoluteRootPath and parent.specifier != Sdf.SpecifierDef:
+        parent.specifier = Sdf.SpecifierDef
+        parent = parent.nameParent
+    if type_name:
+        spec.typeName = type_name
+    if kind:
+        spec.kind = kind
+    return spec
+
+
+def author_uniform(spec: Sdf.PrimSpec, name: str, type_name, value) -> Sdf.AttributeSpec:
+    """A schema (non-custom) uniform attribute, e.g. ``subdivisionScheme``."""
+    attr = Sdf.AttributeSpec(spec, name, type_name, Sdf.VariabilityUniform)
+    attr.default = value
+    return attr
 
 
 def write_mesh(mesh: UsdGeom.Mesh, vertices: np.ndarray, faces: np.ndarray) -> None:

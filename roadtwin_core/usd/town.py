@@ -27,14 +27,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdPhysics
+from pxr import Sdf, UsdGeom, UsdPhysics
 
 from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_material, kind_material, marking_material
 from ..markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
 from .looks import write_looks
-from .stage import (author_api_over, author_labels, author_mesh_geometry, lane_st, new_layer, new_stage, planar_st, safe_prim_name,
-                    set_attrs, set_kind)
+from .stage import (author_api_over, author_attrs, author_labels, author_mesh_geometry, author_uniform, define_prim, lane_st,
+                    new_layer, planar_st, safe_prim_name)
 
 LAYERS = ("looks", "semantics", "physics", "markings", "defects", "roads")
 VARIANT_KINDS = ("driving", "junction")  # the surfaces the root's roadMaterial variant set switches
@@ -91,28 +91,30 @@ def _write_markings(outdir: Path, name: str, doc: str, markings: list[MarkingMes
     """``/<root>/MarkingMeshes/<id>`` meshes (kind component under a group), type and colour as
     token attributes (as on the layout's curves); their arrays go to ``markings.geom.usdc``."""
     root = f"/{name}"
-    stage = new_stage(outdir / "layers/markings.usda", name, doc + ": lane markings draped on the road")
-    _over(stage, root)
+    layer = _readable_layer(outdir, "markings", name, doc + ": lane markings draped on the road")
     geometry = _geometry_layer(outdir, "markings", name, doc)
     with Sdf.ChangeBlock():
         for prim_name, m in zip(prim_names, markings):
             author_mesh_geometry(geometry, f"{root}/{MARKING_MESHES}/{prim_name}", m.vertices, m.faces,
                                  planar_st(m.vertices))
-    if markings:
-        set_kind(UsdGeom.Xform.Define(stage, f"{root}/{MARKING_MESHES}").GetPrim(), "group")
-    for prim_name, m in zip(prim_names, markings):
-        mesh = UsdGeom.Mesh.Define(stage, f"{root}/{MARKING_MESHES}/{prim_name}")
-        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        prim = mesh.GetPrim()
-        set_kind(prim, "component")
-        for key, value in (("type", m.marking_type), ("color", m.color)):
-            prim.CreateAttribute(f"roadtwin:marking:{key}", Sdf.ValueTypeNames.Token, custom=True).Set(value)
-        prim.CreateAttribute("roadtwin:marking:id", Sdf.ValueTypeNames.String, custom=True).Set(m.id)
-    _save(stage, geometry)
+        if markings:
+            define_prim(layer, f"{root}/{MARKING_MESHES}", "Xform", "group")
+        for prim_name, m in zip(prim_names, markings):
+            spec = define_prim(layer, f"{root}/{MARKING_MESHES}/{prim_name}", "Mesh", "component")
+            _no_subdivision(spec)
+            for key, value in (("type", m.marking_type), ("color", m.color)):
+                Sdf.AttributeSpec(spec, f"roadtwin:marking:{key}", Sdf.ValueTypeNames.Token,
+                                  Sdf.VariabilityVarying, True).default = value
+            Sdf.AttributeSpec(spec, "roadtwin:marking:id", Sdf.ValueTypeNames.String,
+                              Sdf.VariabilityVarying, True).default = m.id
+    _save(layer, geometry)
 
 
-def _over(stage: Usd.Stage, path: str) -> Usd.Prim:
-    return stage.OverridePrim(Sdf.Path(path))
+def _readable_layer(outdir: Path, layer: str, name: str, doc: str) -> Sdf.Layer:
+    """``layers/<layer>.usda`` with the stage metadata and an over of the root prim."""
+    out = new_layer(outdir / "layers" / f"{layer}.usda", name, doc)
+    Sdf.CreatePrimInLayer(out, Sdf.Path(f"/{name}"))
+    return out
 
 
 def _geometry_layer(outdir: Path, layer: str, name: str, doc: str) -> Sdf.Layer:
@@ -121,104 +123,121 @@ def _geometry_layer(outdir: Path, layer: str, name: str, doc: str) -> Sdf.Layer:
                      f"{doc}: mesh arrays of {layer}.usda (crate, sublayered by it)")
 
 
-def _save(stage: Usd.Stage, geometry: Sdf.Layer) -> None:
-    """Save the crate, then the readable layer sublayering it (added last, so the stage composes
-    the crate once instead of after every edit)."""
+def _no_subdivision(spec: Sdf.PrimSpec) -> None:
+    author_uniform(spec, UsdGeom.Tokens.subdivisionScheme, Sdf.ValueTypeNames.Token, UsdGeom.Tokens.none)
+
+
+def _save(layer: Sdf.Layer, geometry: Sdf.Layer) -> None:
+    """Save the crate, then the readable layer sublayering it."""
     geometry.Save()
-    layer = stage.GetRootLayer()
     layer.subLayerPaths.append(f"./{Path(geometry.realPath).name}")
     layer.Save()
 
 
+def split_by_owner(m: MergedSegment) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Every owner's :meth:`MergedSegment.part` (same vertices and faces, in the same order), from
+    one sort of the segment's (owner, vertex) pairs instead of a mask and a ``np.unique`` per owner."""
+    owner = np.asarray(m.face_owner, dtype=np.int64)
+    if not len(owner):
+        return {}
+    faces = np.asarray(m.faces, dtype=np.int64)
+    order = np.argsort(owner, kind="stable")
+    owners, starts = np.unique(owner[order], return_index=True)
+    n = len(m.vertices)
+    rank = np.searchsorted(owners, owner[order])
+    keys, inverse = np.unique((rank[:, None] * n + faces[order]).ravel(), return_inverse=True)
+    key_start = np.searchsorted(keys, np.arange(len(owners)) * n)
+    local = inverse.reshape(-1, 3) - key_start[rank][:, None]
+    key_end = np.append(key_start[1:], len(keys))
+    ends = np.append(starts[1:], len(order))
+    return {int(o): (m.vertices[keys[ks:ke] - r * n], local[s:e])
+            for r, (o, s, e, ks, ke) in enumerate(zip(owners, starts, ends, key_start, key_end))}
+
+
 def write_town(outdir: Path, parts: TownParts) -> Path:
+    """Every layer but the small root is authored at the Sdf level, each in one change block: no
+    stage recomposes while tens of thousands of prims are written."""
     lay = parts.layout
     root = f"/{lay.name}"
     (outdir / "layers").mkdir(exist_ok=True)
     doc = f"roadtwin town composed from {Path(lay.source).name}"
+    split = [split_by_owner(m) for m in parts.merged]
+    empty = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
 
-    roads = new_stage(outdir / "layers/roads.usda", lay.name, doc + ": merged road surfaces")
-    _over(roads, root)
+    roads = _readable_layer(outdir, "roads", lay.name, doc + ": merged road surfaces")
     geometry = _geometry_layer(outdir, "roads", lay.name, doc)
     with Sdf.ChangeBlock():
-        for seg, m in zip(lay.segments, parts.merged):
-            v, f = m.part(-1)
+        for seg, parts_of in zip(lay.segments, split):
+            v, f = parts_of.get(-1, empty)
             author_mesh_geometry(geometry, seg.prim_path, v, f, segment_st(seg, v))
-    for seg in lay.segments:
-        UsdGeom.Mesh(_over(roads, seg.prim_path)).CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        for seg in lay.segments:
+            _no_subdivision(Sdf.CreatePrimInLayer(roads, Sdf.Path(seg.prim_path)))
     _save(roads, geometry)
 
-    defects = new_stage(outdir / "layers/defects.usda", lay.name, doc + ": defect instances")
-    _over(defects, root)
-    group = UsdGeom.Xform.Define(defects, f"{root}/Defects").GetPrim()
-    set_kind(group, "group")
     pieces: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = {}
-    for seg, m, own in zip(lay.segments, parts.merged, parts.owners):
+    for seg, parts_of, own in zip(lay.segments, split, parts.owners):
         for local, global_index in enumerate(own):
-            if (m.face_owner == local).any():
-                v, f = m.part(local)
-                pieces.setdefault(global_index, []).append((seg.id, v, f))
+            if local in parts_of:
+                pieces.setdefault(global_index, []).append((seg.id, *parts_of[local]))
+    defects = _readable_layer(outdir, "defects", lay.name, doc + ": defect instances")
     geometry = _geometry_layer(outdir, "defects", lay.name, doc)
     with Sdf.ChangeBlock():
         for i, p in enumerate(parts.placements):
             for seg_id, v, f in pieces.get(i, []):
                 author_mesh_geometry(geometry, f"{root}/Defects/{p.instance_id}/{seg_id}", v, f, planar_st(v))
-    for i, p in enumerate(parts.placements):
-        prim = UsdGeom.Xform.Define(defects, f"{root}/Defects/{p.instance_id}").GetPrim()
-        set_kind(prim, "component")
-        attrs = p.attributes()
-        set_attrs(prim, "roadtwin:defect", {k: attrs[k] for k in ("type", "depthM", "heightM", "areaM2", "volumeM3")})
-        set_attrs(prim, "roadtwin:defect", {"model": attrs["model"], "segments": list(p.segment_ids),
-                                            "poseXYYaw": [p.x, p.y, p.yaw], "scale": list(p.scale)})
-        prim.CreateAttribute("roadtwin:source", Sdf.ValueTypeNames.Asset, custom=True).Set(
-            Sdf.AssetPath("../" + parts.library_files[p.model.name].removeprefix("./")))  # relative to layers/
-        for seg_id, _, _ in pieces.get(i, []):
-            mesh = UsdGeom.Mesh.Define(defects, f"{root}/Defects/{p.instance_id}/{seg_id}")
-            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        define_prim(defects, f"{root}/Defects", "Xform", "group")
+        for i, p in enumerate(parts.placements):
+            prim = define_prim(defects, f"{root}/Defects/{p.instance_id}", "Xform", "component")
+            attrs = p.attributes()
+            author_attrs(prim, "roadtwin:defect", {k: attrs[k] for k in ("type", "depthM", "heightM", "areaM2", "volumeM3")})
+            author_attrs(prim, "roadtwin:defect", {"model": attrs["model"], "segments": list(p.segment_ids),
+                                                   "poseXYYaw": [p.x, p.y, p.yaw], "scale": list(p.scale)})
+            Sdf.AttributeSpec(prim, "roadtwin:source", Sdf.ValueTypeNames.Asset, Sdf.VariabilityVarying, True).default = (
+                Sdf.AssetPath("../" + parts.library_files[p.model.name].removeprefix("./")))  # relative to layers/
+            for seg_id, _, _ in pieces.get(i, []):
+                _no_subdivision(define_prim(defects, f"{root}/Defects/{p.instance_id}/{seg_id}", "Mesh"))
     _save(defects, geometry)
 
     marking_names = marking_prim_names(parts.markings)
     _write_markings(outdir, lay.name, doc, parts.markings, marking_names)
 
-    physics = new_stage(outdir / "layers/physics.usda", lay.name, doc + ": static road collision")
-    _over(physics, root)
-    scene = UsdPhysics.Scene.Define(physics, f"{root}/PhysicsScene")
-    scene.CreateGravityDirectionAttr((0.0, 0.0, -1.0))
-    scene.CreateGravityMagnitudeAttr(9.81)
+    physics = _readable_layer(outdir, "physics", lay.name, doc + ": static road collision")
     colliders = [seg.prim_path for seg in lay.segments]
     colliders += [f"{root}/Defects/{p.instance_id}/{seg_id}" for i, p in enumerate(parts.placements)
                   for seg_id, _, _ in pieces.get(i, [])]
     with Sdf.ChangeBlock():
+        scene = define_prim(physics, f"{root}/PhysicsScene", "PhysicsScene")
+        Sdf.AttributeSpec(scene, UsdPhysics.Tokens.physicsGravityDirection, Sdf.ValueTypeNames.Vector3f).default = (0.0, 0.0, -1.0)
+        Sdf.AttributeSpec(scene, UsdPhysics.Tokens.physicsGravityMagnitude, Sdf.ValueTypeNames.Float).default = 9.81
         for path in colliders:
-            author_api_over(physics.GetRootLayer(), path, ["PhysicsCollisionAPI", "PhysicsMeshCollisionAPI"],
+            author_api_over(physics, path, ["PhysicsCollisionAPI", "PhysicsMeshCollisionAPI"],
                             {"physics:approximation": (Sdf.ValueTypeNames.Token, UsdPhysics.Tokens.none)}, uniform=True)
-    physics.GetRootLayer().Save()
+    physics.Save()
 
-    sem = new_stage(outdir / "layers/semantics.usda", lay.name, doc + ": semantic labels")
-    _over(sem, root)
+    sem = _readable_layer(outdir, "semantics", lay.name, doc + ": semantic labels")
     labels = [(seg.prim_path, ["road", seg.kind]) for seg in lay.segments]
     labels += [(f"{root}/Defects/{p.instance_id}", ["road_defect", p.model.defect_type]) for p in parts.placements]
     labels += [(f"{root}/{MARKING_MESHES}/{name}", ["lane_marking", m.marking_type])
                for name, m in zip(marking_names, parts.markings)]
     with Sdf.ChangeBlock():
         for path, tags in labels:
-            author_labels(sem.GetRootLayer(), path, tags)
-    sem.GetRootLayer().Save()
+            author_labels(sem, path, tags)
+    sem.Save()
 
-    looks = new_stage(outdir / "layers/looks.usda", lay.name, doc + ": materials and their bindings")
-    _over(looks, root)
+    looks = _readable_layer(outdir, "looks", lay.name, doc + ": materials and their bindings")
     bindings = [(seg.prim_path, kind_material(seg.kind)) for seg in lay.segments if seg.kind not in VARIANT_KINDS]
     for i, p in enumerate(parts.placements):
         material = defect_material(p.model.defect_type)
         bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
     bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
     write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
-    looks.GetRootLayer().Save()
+    looks.Save()
 
     town_path = outdir / "town.usda"
-    town = new_stage(town_path, lay.name, doc)
-    town.GetRootLayer().subLayerPaths = [f"./layers/{n}.usda" for n in LAYERS] + [f"./{parts.layout_file}"]
-    top = _over(town, root)
-    set_kind(top, "assembly")
-    set_attrs(top, "roadtwin:compose", parts.compose_info)
-    town.GetRootLayer().Save()
+    town = new_layer(town_path, lay.name, doc)  # a layer, not a stage: a stage would compose the whole town here
+    town.subLayerPaths = [f"./layers/{n}.usda" for n in LAYERS] + [f"./{parts.layout_file}"]
+    top = Sdf.CreatePrimInLayer(town, Sdf.Path(root))
+    top.kind = "assembly"
+    author_attrs(top, "roadtwin:compose", parts.compose_info)
+    town.Save()
     return town_path

@@ -1,4 +1,8 @@
-"""Run every registered ``pxr.UsdValidation`` validator on a stage."""
+"""Run every registered ``pxr.UsdValidation`` validator on a stage.
+
+Validators that look only inside usdz packages are left out when the stage uses none: they
+cannot find anything there, and on a composed Town01 the package check alone walks every layer
+and asset for over a second."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -7,6 +11,9 @@ from pathlib import Path
 from pxr import Usd, UsdValidation
 
 from ..errors import RoadtwinError
+
+
+PACKAGE_KEYWORD = "UsdzValidators"  # keyword of the validators that check usdz packages only
 
 
 @dataclass
@@ -25,8 +32,10 @@ def validate_stage(path: str | Path) -> list[Finding]:
         stage = Usd.Stage.Open(str(path))
     except Exception as exc:
         raise RoadtwinError(f"{path}: not a readable USD stage ({str(exc).strip().splitlines()[-1]})") from None
-    registry = UsdValidation.ValidationRegistry()
-    ctx = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    if not any(layer.GetFileFormat().IsPackage() for layer in stage.GetUsedLayers()):
+        validators = [v for v in validators if PACKAGE_KEYWORD not in v.GetMetadata().GetKeywords()]
+    ctx = UsdValidation.ValidationContext(validators)
     findings = []
     for err in ctx.Validate(stage):
         if err.HasNoError():
