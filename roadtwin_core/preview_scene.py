@@ -179,23 +179,32 @@ def _decode_reduced(tex, max_texels: int) -> np.ndarray:
 
     if not tex.path:
         return decode_texture(tex)
+    channels = list(tex.channels)
     try:
         with Image.open(tex.path) as im:
             if im.mode not in ("L", "LA", "RGB", "RGBA", "P"):
                 img = None                                   # 16-bit and others: the general path
+            elif (im.mode == "RGB" and max(channels) < 3) or (im.mode == "RGBA" and max(channels) < 4):
+                img = np.asarray(im)[..., channels]
             else:
-                img = np.asarray(im.convert("RGBA"))[..., list(tex.channels)]
+                img = np.asarray(im.convert("RGBA"))[..., channels]
     except Exception as exc:
         raise RoadtwinError(f"{tex.path}: not a readable image ({exc})") from None
     if img is None:
         out = decode_texture(tex)
     else:
         unit = np.arange(256, dtype=np.float32) / 255.0
-        linear = srgb_to_linear(unit)
-        out = np.empty(img.shape, np.float32)
-        for k, ch in enumerate(tex.channels):
-            lut = linear if (tex.srgb and ch < 3) else unit
-            out[..., k] = lut[img[..., k]]
+        srgb = [tex.srgb and ch < 3 for ch in channels]
+        if not any(srgb):
+            # linear channels: reduce the integers first (the mean commutes with scale and bias)
+            acc = img.astype(np.float32)
+            while max(acc.shape[:2]) > max_texels and min(acc.shape[:2]) % 2 == 0:
+                acc = 0.5 * (acc[0::2] + acc[1::2])
+                acc = 0.5 * (acc[:, 0::2] + acc[:, 1::2])
+            out = acc / np.float32(255.0)
+        else:
+            lut = np.stack([srgb_to_linear(unit) if s else unit for s in srgb], axis=1)   # (256, C)
+            out = lut[img, np.arange(len(channels))]
         out = (out * np.asarray(tex.scale, np.float32) + np.asarray(tex.bias, np.float32)).astype(np.float32)
     while max(out.shape[:2]) > max_texels and min(out.shape[:2]) % 2 == 0:
         out = 0.5 * (out[0::2] + out[1::2])                  # as the renderer's mip_levels: rows, then columns
