@@ -1,17 +1,19 @@
 """``preview.png`` of a composed town: what a person wants to see first.
 
 Left, one perspective render by the project's renderer (the ``warp`` renderer plugin, found
-through the plugin manager) from a camera 2 m above a driving lane, looking along it at the
-lane spot with the most defects 5-20 m ahead (markings come into view with the lane); right,
-the top-down map (roads shaded by elevation, defects red, markings white), rasterized in numpy
-(pixel-centre tests, vectorized over the triangles; not one matplotlib artist per triangle: well
-under a second for a 1,000-defect town on an idle core). Given a stage path alone, both are read
-back from the written stage, looks included. The composer instead passes the town it holds in
-memory (:class:`~roadtwin_core.preview_scene.PreviewTown`): the same triangles, labels and st
-through the writer's own functions, the materials parsed from the stage's looks layer, and only
-the road within 150 m of the camera in the ray-casting scene (reading Town01 back cost ~6 s).
-Without a usable renderer (warp not installed, plugin not loaded) the map stands alone with a
-note saying why.
+through the plugin manager, warp's own ray caster: for one 800 x 480 frame it beats loading
+open3d) from a camera 2 m above a driving lane, looking along it at the lane spot with the
+most defects 5-20 m ahead (markings come into view with the lane); right, the top-down map
+(roads shaded by elevation, defects red, markings white), rasterized in numpy (pixel-centre
+tests, vectorized over the triangles). The sheet is drawn with Pillow: matplotlib's import
+and figure saving cost ~1.5 s of a preview that should take well under one. Given a stage path
+alone, both are read back from the written stage, looks included. The composer instead passes
+the town it holds in memory (:class:`~roadtwin_core.preview_scene.PreviewTown`): the same
+triangles, labels and st through the writer's own functions, the materials parsed from the
+stage's looks layer (textures at the MIP level the frame needs), and only the road the camera
+can see (its horizontal wedge, within 150 m) in the ray-casting scene (reading Town01 back cost
+~6 s). Without a usable renderer (warp not installed, plugin not loaded) the map stands alone
+with a note saying why.
 """
 from __future__ import annotations
 
@@ -74,13 +76,15 @@ def choose_spot(lanes, defect_xy: np.ndarray, step_m: float = 1.0) -> PreviewSpo
 
 
 BAND_COLOURS = (0.25, 0.85)   # the part of matplotlib's "terrain" map the elevation bands use
+# matplotlib's "terrain" colour map (its segment data), so the map needs no matplotlib import (~1 s)
+_TERRAIN = np.array([[0.00, 0.2, 0.2, 0.6], [0.15, 0.0, 0.6, 1.0], [0.25, 0.0, 0.8, 0.4],
+                     [0.50, 1.0, 1.0, 0.6], [0.75, 0.5, 0.36, 0.33], [1.00, 1.0, 1.0, 1.0]])
 
 
-def band_colormap(n: int = 64):
-    from matplotlib import colormaps
-    from matplotlib.colors import ListedColormap
-
-    return ListedColormap(colormaps["terrain"](np.linspace(*BAND_COLOURS, n))[:, :3])
+def band_colours(n: int = 64) -> np.ndarray:
+    """(n, 3) RGB in [0, 1]: the elevation bands, low to high."""
+    x = np.linspace(*BAND_COLOURS, n)
+    return np.stack([np.interp(x, _TERRAIN[:, 0], _TERRAIN[:, k]) for k in (1, 2, 3)], axis=1)
 
 
 def fill_triangles(img: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, colours) -> None:
@@ -133,15 +137,20 @@ def fill_triangles(img: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
         img[y0:y1, x0:x1][inside] = colours[t]
 
 
-def rasterize_map(mesh, width_px: int = 900) -> tuple[np.ndarray, tuple, tuple]:
+def rasterize_map(mesh, width_px: int = 900, max_height_px: int | None = None) -> tuple[np.ndarray, tuple, tuple]:
     """Top-down RGB image (uint8, north up) of a RenderMesh: road faces coloured by mean
-    elevation in 64 bands, then defect faces red, then lane markings white, on white. Returns
-    (image, extent (x0, x1, y0, y1) in m, elevation range (lo, hi))."""
+    elevation in 64 bands, then defect faces red, then lane markings white, on white;
+    ``width_px`` wide, or less where ``max_height_px`` would be exceeded (same scale both ways).
+    Returns (image, extent (x0, x1, y0, y1) in m, elevation range (lo, hi))."""
     from .render.scene import MARKING_CLASS
 
     v = mesh.vertices
     lo, hi = v[:, :2].min(axis=0) - 1.0, v[:, :2].max(axis=0) + 1.0
     scale = width_px / max(hi[0] - lo[0], 1e-6)
+    if max_height_px is not None and (hi[1] - lo[1]) * scale > max_height_px:
+        scale = max_height_px / max(hi[1] - lo[1], 1e-6)
+        width_px = max(1, int(math.ceil((hi[0] - lo[0]) * scale)))
+        hi[0] = lo[0] + width_px / scale
     h_px = max(1, int(math.ceil((hi[1] - lo[1]) * scale)))
     img = np.full((h_px, width_px, 3), 255, np.uint8)
     vp = np.empty((len(v), 2), np.float32)
@@ -157,18 +166,34 @@ def rasterize_map(mesh, width_px: int = 900) -> tuple[np.ndarray, tuple, tuple]:
     zlo, zhi = (float(z.min()), float(z.max())) if len(f) else (0.0, 1.0)
     zhi = max(zhi, zlo + 1e-3)
     band = np.clip(((z - zlo) / (zhi - zlo) * 63).astype(np.int32), 0, 63)
-    palette = (band_colormap(64).colors * 255).astype(np.uint8)
+    palette = np.round(band_colours(64) * 255).astype(np.uint8)
     for mask, colour in ((road, palette[band]), (defect, (200, 20, 50)), (marking, (255, 255, 255))):
         f = mesh.faces[mask]
         fill_triangles(img, vp[f[:, 0]], vp[f[:, 1]], vp[f[:, 2]], colour)
     return img, (lo[0], hi[0], lo[1], hi[1]), (zlo, zhi)
 
 
+def view_half_angle(cam, margin_deg: float = 10.0) -> float:
+    """Half the horizontal angle (rad, about the camera's heading) that the image spans on the
+    ground plane, plus a margin: the widest azimuth among the rays through the image border
+    (a pitched camera's bottom corners spread wider than its horizontal field of view)."""
+    k = cam.intrinsics
+    u = np.r_[np.linspace(0, k.width, 9), np.full(9, k.width), np.linspace(0, k.width, 9), np.zeros(9)]
+    v = np.r_[np.zeros(9), np.linspace(0, k.height, 9), np.full(9, k.height), np.linspace(0, k.height, 9)]
+    d = np.stack([(u - k.cx) / k.fx, (v - k.cy) / k.fy, np.ones_like(u)], axis=1) @ np.asarray(cam.rotation).T
+    axis = np.asarray(cam.rotation)[:, 2]
+    heading = math.atan2(axis[1], axis[0])
+    az = np.arctan2(d[:, 1], d[:, 0]) - heading
+    az = (az + np.pi) % (2 * np.pi) - np.pi
+    return float(min(np.abs(az).max() + math.radians(margin_deg), np.pi))
+
+
 def render_view(town_stage: Path, mesh, pm, lanes=None, view_mesh=None
                 ) -> tuple[np.ndarray | None, str, PreviewSpot | None, object]:
     """(sRGB uint8 image or None, note, spot, camera) of the perspective view. ``lanes``
-    (default: read from the stage) and ``view_mesh(spot) -> RenderMesh`` (default: ``mesh``
-    itself) let a caller that holds the town in memory skip reading the stage back."""
+    (default: read from the stage) and ``view_mesh(spot, half_angle=) -> RenderMesh`` (default:
+    ``mesh`` itself; ``half_angle``: :func:`view_half_angle`) let a caller that holds the town in
+    memory skip reading the stage back and keep only what the camera can see."""
     from .render import Camera, GroundSampler, Intrinsics, RenderParams, look_from, stage_lanes, to_srgb8
     from .render.cameras import vehicle_height
 
@@ -200,8 +225,10 @@ def render_view(town_stage: Path, mesh, pm, lanes=None, view_mesh=None
     pos = (spot.xy[0], spot.xy[1], z + CAMERA_HEIGHT_M)
     cam = Camera(Intrinsics.from_fov(*RENDER_SIZE, RENDER_HFOV_DEG), look_from(pos, spot.heading, pitch))
     try:
-        scene = view_mesh(spot) if view_mesh is not None else mesh
-        frame = next(iter(renderer.render(scene, [cam], RenderParams())))
+        scene = view_mesh(spot, half_angle=view_half_angle(cam)) if view_mesh is not None else mesh
+        # warp's own BVH: for one small frame it beats open3d's Embree end to end (open3d's import
+        # alone is ~1 s, and its scene ~170 MB more on Town01)
+        frame = next(iter(renderer.render(scene, [cam], RenderParams(backend="warp"))))
     except ImportError as exc:                       # the plugin loaded but its engine (warp) did not
         return None, f"no perspective view: renderer warp unavailable ({exc})", spot, cam
     return to_srgb8(frame.rgb), "", spot, cam
@@ -211,14 +238,10 @@ def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: i
     """Write the preview PNG of the composed ``town_stage``; returns what it shows
     (``spot``, ``camera``, ``note`` when the perspective view is missing, timings).
     ``town``: the :class:`~roadtwin_core.preview_scene.PreviewTown` the composer just wrote
-    (meshes in memory, materials read from the stage's looks layer), so nothing is read back."""
+    (meshes in memory, materials read from the stage's looks layer), so nothing is read back.
+    The PNG is composed with Pillow (no matplotlib: its import and figure saving took ~1.5 s);
+    ``dpi`` is kept for callers and ignored."""
     import time
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import Normalize
 
     from .plugins import get_plugin_manager
     from .render import build_render_mesh
@@ -233,34 +256,88 @@ def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: i
         mesh = build_render_mesh(load_town(town_stage, looks=True))
         view, note, spot, cam = render_view(Path(town_stage), mesh, pm)
     t_render = time.perf_counter()
-    img, extent, (zlo, zhi) = rasterize_map(mesh)
+    img, extent, zrange = rasterize_map(mesh, width_px=MAP_SIZE[0], max_height_px=MAP_SIZE[1])
+    del mesh
     t_map = time.perf_counter()
-
-    if view is not None:
-        fig, axes = plt.subplots(1, 2, figsize=(16, 6.2), gridspec_kw={"width_ratios": [1.25, 1]})
-        ax_view, ax = axes
-        ax_view.imshow(view)
-        ax_view.set_axis_off()
-        ax_view.set_title(f"roadtwin warp render: lane {spot.lane}, {spot.defects_ahead} defects 5-20 m ahead",
-                          fontsize=10)
-    else:
-        fig, ax = plt.subplots(1, 1, figsize=(9, 7))
-    ax.imshow(img, extent=extent, interpolation="antialiased")
-    if spot is not None:
-        c, s = math.cos(spot.heading), math.sin(spot.heading)
-        ax.plot([spot.xy[0]], [spot.xy[1]], "o", color="k", ms=5)
-        ax.annotate("", xy=(spot.xy[0] + 25 * c, spot.xy[1] + 25 * s), xytext=tuple(spot.xy),
-                    arrowprops={"arrowstyle": "->", "color": "k", "lw": 1.5})
-    sm = plt.cm.ScalarMappable(norm=Normalize(zlo, zhi), cmap=band_colormap(64))
-    fig.colorbar(sm, ax=ax, label="road elevation (m)", shrink=0.7)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title(title or Path(town_stage).parent.name, fontsize=10)
-    if note:
-        ax.text(0.01, 0.01, note, transform=ax.transAxes, fontsize=8, color="darkred", va="bottom",
-                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
+    view_title = (f"roadtwin warp render: lane {spot.lane}, {spot.defects_ahead} defects 5-20 m ahead"
+                  if view is not None else "")
+    sheet = compose_sheet(view, view_title, img, extent, zrange, spot, title or Path(town_stage).parent.name, note)
+    sheet.save(path, format="PNG", compress_level=6)
     return {"path": Path(path), "spot": spot, "camera": cam if view is not None else None, "note": note or None,
             "timings_s": {"render": t_render - t0, "map": t_map - t_render, "total": time.perf_counter() - t0}}
+
+
+MAP_SIZE = (640, RENDER_SIZE[1])    # the map fits this box (pixels), beside the 800 x 480 view
+_INK, _NOTE_INK = (20, 20, 20), (140, 0, 0)
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:                                   # Pillow < 10.1: the fixed bitmap font
+        return ImageFont.load_default()
+
+
+def _nice_step(span: float) -> float:
+    """A 1/2/5 x 10^k length near a fifth of ``span`` (the map's scale bar)."""
+    raw = max(span / 5.0, 1e-9)
+    k = 10 ** math.floor(math.log10(raw))
+    return min((m * k for m in (1, 2, 5, 10)), key=lambda v: abs(v - raw))
+
+
+def compose_sheet(view, view_title: str, img: np.ndarray, extent: tuple, zrange: tuple, spot, title: str,
+                  note: str = ""):
+    """The preview as one Pillow image: the view (if any) with its title, then the map with its
+    title, the camera spot and heading (arrow), a scale bar and the elevation colour bar."""
+    from PIL import Image, ImageDraw
+
+    font, small = _font(14), _font(12)
+    pad, head = 10, 26
+    mh, mw = img.shape[:2]
+    bar_w, bar_gap, label_w = 16, 12, 110
+    vw = view.shape[1] + pad if view is not None else 0
+    width = pad + vw + mw + bar_gap + bar_w + label_w
+    height = head + max(mh, view.shape[0] if view is not None else 0) + 34
+    sheet = Image.new("RGB", (width, height), (255, 255, 255))
+    draw = ImageDraw.Draw(sheet)
+    if view is not None:
+        sheet.paste(Image.fromarray(np.ascontiguousarray(view)), (pad, head))
+        draw.text((pad + view.shape[1] // 2, head // 2), view_title, fill=_INK, font=font, anchor="mm")
+    mx, my = pad + vw, head
+    sheet.paste(Image.fromarray(img), (mx, my))
+    draw.rectangle((mx - 1, my - 1, mx + mw, my + mh), outline=(120, 120, 120))
+    draw.text((mx + mw // 2, head // 2), title, fill=_INK, font=font, anchor="mm")
+    x0, x1, y0, y1 = extent
+    scale = mw / (x1 - x0)
+
+    def px(x, y):
+        return mx + (x - x0) * scale, my + (y1 - y) * scale
+
+    if spot is not None:
+        sx, sy = px(*spot.xy)
+        ex, ey = px(spot.xy[0] + 25 * math.cos(spot.heading), spot.xy[1] + 25 * math.sin(spot.heading))
+        draw.ellipse((sx - 4, sy - 4, sx + 4, sy + 4), fill=(0, 0, 0))
+        draw.line((sx, sy, ex, ey), fill=(0, 0, 0), width=2)
+        a = math.atan2(ey - sy, ex - sx)
+        draw.polygon([(ex, ey)] + [(ex - 9 * math.cos(a + s), ey - 9 * math.sin(a + s)) for s in (0.45, -0.45)],
+                     fill=(0, 0, 0))
+    step = _nice_step(x1 - x0)                          # scale bar under the map
+    bx, by = mx, my + mh + 12
+    draw.line((bx, by, bx + step * scale, by), fill=_INK, width=3)
+    draw.text((bx + step * scale + 6, by), f"{step:g} m   (x {x0:.0f}..{x1:.0f} m, y {y0:.0f}..{y1:.0f} m)",
+              fill=_INK, font=small, anchor="lm")
+    cx, cy0, ch = mx + mw + bar_gap, my + mh // 6, mh * 2 // 3     # elevation colour bar, high on top
+    ramp = np.round(band_colours(64)[::-1] * 255).astype(np.uint8)
+    bar = np.repeat(ramp[np.minimum((np.arange(ch) * 64) // max(ch, 1), 63)][:, None], bar_w, axis=1)
+    sheet.paste(Image.fromarray(np.ascontiguousarray(bar)), (cx, cy0))
+    draw.rectangle((cx - 1, cy0 - 1, cx + bar_w, cy0 + ch), outline=(120, 120, 120))
+    zlo, zhi = zrange
+    for z, y in ((zhi, cy0), (zlo, cy0 + ch)):
+        draw.text((cx + bar_w + 5, y), f"{z:.3g} m", fill=_INK, font=small, anchor="lm")
+    draw.text((cx + bar_w + 5, cy0 + ch // 2), "road\nelevation", fill=_INK, font=small, anchor="lm")
+    draw.text((cx, cy0 + ch + 16), "defects", fill=(200, 20, 50), font=small, anchor="lm")
+    if note:
+        draw.text((pad, height - 6), note, fill=_NOTE_INK, font=small, anchor="ld")
+    return sheet

@@ -20,7 +20,8 @@ from .looks.catalog import defect_material, kind_material, marking_material
 from .model import MergedSegment, Placement, TownLayout
 
 VIEW_RANGE_M = 150.0     # road drawn in the perspective view: this far around the camera ...
-VIEW_BEHIND_M = 5.0      # ... and no more than this behind it
+VIEW_BEHIND_M = 5.0      # ... and no more than this behind it (without a view wedge)
+VIEW_MARGIN_M = 2.0      # faces this close to the camera's view wedge are kept (shadows, bevels)
 
 
 @dataclass
@@ -78,7 +79,7 @@ class PreviewTown:
                 return 0
             if name not in mat_slot:
                 mat_slot[name] = len(materials)
-                materials.append(render_material(stage_mats[name]))
+                materials.append(preview_material(stage_mats[name]) if looks else render_material(stage_mats[name]))
             return mat_slot[name]
 
         verts, faces, fcls, finst, fmat, fuv, offset = [], [], [], [], [], [], 0
@@ -116,19 +117,99 @@ class PreviewTown:
         """The whole town, labelled (no looks: the map colours by elevation and label)."""
         return self._mesh()
 
-    def view_mesh(self, spot, range_m: float = VIEW_RANGE_M):
-        """The road within ``range_m`` of the camera (and not behind it), with the stage's looks."""
+    def view_mesh(self, spot, range_m: float = VIEW_RANGE_M, half_angle: float | None = None):
+        """The road within ``range_m`` of the camera, with the stage's looks: only faces that
+        may lie inside the horizontal wedge of ``half_angle`` (rad) about the heading (None:
+        everything not more than ``VIEW_BEHIND_M`` behind the camera). A face is kept when its
+        bounding circle (centroid, farthest corner) meets the region, so a large road triangle
+        whose corners all lie outside the wedge is still drawn."""
         c, s = np.cos(spot.heading), np.sin(spot.heading)
+        wedge = half_angle is not None and half_angle < 0.5 * np.pi
 
         def keep(v, f):
             lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)     # whole segment out of range: skip
             if (np.maximum(lo - spot.xy, 0) ** 2).sum() + (np.maximum(spot.xy - hi, 0) ** 2).sum() >= range_m ** 2:
                 return np.zeros(len(f), bool)
             d = v[:, :2] - spot.xy
-            ok = (np.hypot(d[:, 0], d[:, 1]) < range_m) & (d[:, 0] * c + d[:, 1] * s > -VIEW_BEHIND_M)
-            return ok[f[:, 0]] | ok[f[:, 1]] | ok[f[:, 2]]
+            if not wedge:
+                ok = (np.hypot(d[:, 0], d[:, 1]) < range_m) & (d[:, 0] * c + d[:, 1] * s > -VIEW_BEHIND_M)
+                return ok[f[:, 0]] | ok[f[:, 1]] | ok[f[:, 2]]
+            ca, cb, cc = d[f[:, 0]], d[f[:, 1]], d[f[:, 2]]
+            cen = (ca + cb + cc) / 3.0
+            r = np.sqrt(np.maximum(np.maximum(((ca - cen) ** 2).sum(1), ((cb - cen) ** 2).sum(1)),
+                                   ((cc - cen) ** 2).sum(1)))
+            ahead = cen[:, 0] * c + cen[:, 1] * s
+            side = np.abs(-cen[:, 0] * s + cen[:, 1] * c)
+            dist = np.hypot(ahead, side)
+            off = np.arctan2(side, ahead) - half_angle               # angle outside the wedge
+            to_wedge = np.where(off <= 0, 0.0, np.where(off < 0.5 * np.pi, dist * np.sin(np.minimum(off, 0.5 * np.pi)),
+                                                         dist))
+            return (to_wedge <= r + VIEW_MARGIN_M) & (dist - r < range_m)
 
         return self._mesh(keep, looks=True)
+
+
+PREVIEW_TEXELS = 512     # textures decoded at the MIP level no larger than this (one small frame)
+
+
+def preview_material(mat, max_texels: int = PREVIEW_TEXELS):
+    """A stage material as the renderer's images, each texture at the first MIP level whose
+    side is <= ``max_texels``: the renderer's own box pyramid level (2 x 2 means of the
+    decoded values), so the view looks as the full material does at that distance, for a
+    quarter of the memory per level dropped. Decoded through a 256-entry table (uint8 in)."""
+    from .render.scene import RenderMaterial
+
+    diffuse = (_decode_reduced(mat.diffuse_texture, max_texels) if mat.diffuse_texture is not None
+               else np.asarray(mat.diffuse_color, np.float32).reshape(1, 1, 3))
+    rough = (_decode_reduced(mat.roughness_texture, max_texels) if mat.roughness_texture is not None
+             else np.full((1, 1, 1), mat.roughness, np.float32))
+    normal = _decode_reduced(mat.normal_texture, max_texels) if mat.normal_texture is not None else None
+    first = next((t for t in (mat.diffuse_texture, mat.roughness_texture, mat.normal_texture) if t is not None), None)
+    wrap = (first.wrap_s, first.wrap_t) if first is not None else ("repeat", "repeat")
+    return RenderMaterial(mat.name, np.clip(diffuse, 0.0, None), np.clip(rough, 0.0, 1.0), normal,
+                          mat.metallic, wrap)
+
+
+def _decode_reduced(tex, max_texels: int) -> np.ndarray:
+    """``decode_texture(tex)`` box-reduced by 2 until its larger side is <= ``max_texels``."""
+    from PIL import Image
+
+    from .errors import RoadtwinError
+    from .usd.looks_reader import decode_texture, srgb_to_linear
+
+    if not tex.path:
+        return decode_texture(tex)
+    channels = list(tex.channels)
+    try:
+        with Image.open(tex.path) as im:
+            if im.mode not in ("L", "LA", "RGB", "RGBA", "P"):
+                img = None                                   # 16-bit and others: the general path
+            elif (im.mode == "RGB" and max(channels) < 3) or (im.mode == "RGBA" and max(channels) < 4):
+                img = np.asarray(im)[..., channels]
+            else:
+                img = np.asarray(im.convert("RGBA"))[..., channels]
+    except Exception as exc:
+        raise RoadtwinError(f"{tex.path}: not a readable image ({exc})") from None
+    if img is None:
+        out = decode_texture(tex)
+    else:
+        unit = np.arange(256, dtype=np.float32) / 255.0
+        srgb = [tex.srgb and ch < 3 for ch in channels]
+        if not any(srgb):
+            # linear channels: reduce the integers first (the mean commutes with scale and bias)
+            acc = img.astype(np.float32)
+            while max(acc.shape[:2]) > max_texels and min(acc.shape[:2]) % 2 == 0:
+                acc = 0.5 * (acc[0::2] + acc[1::2])
+                acc = 0.5 * (acc[:, 0::2] + acc[:, 1::2])
+            out = acc / np.float32(255.0)
+        else:
+            lut = np.stack([srgb_to_linear(unit) if s else unit for s in srgb], axis=1)   # (256, C)
+            out = lut[img, np.arange(len(channels))]
+        out = (out * np.asarray(tex.scale, np.float32) + np.asarray(tex.bias, np.float32)).astype(np.float32)
+    while max(out.shape[:2]) > max_texels and min(out.shape[:2]) % 2 == 0:
+        out = 0.5 * (out[0::2] + out[1::2])                  # as the renderer's mip_levels: rows, then columns
+        out = 0.5 * (out[:, 0::2] + out[:, 1::2])
+    return np.ascontiguousarray(out, dtype=np.float32)
 
 
 def _stage_materials(looks_layer: Path | None) -> dict:
@@ -147,4 +228,4 @@ def _stage_materials(looks_layer: Path | None) -> dict:
     return out
 
 
-__all__ = ["PreviewTown", "VIEW_RANGE_M"]
+__all__ = ["PreviewTown", "VIEW_RANGE_M", "preview_material"]

@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 from roadtwin_core.compose import compose
+from roadtwin_core.preview_scene import PREVIEW_TEXELS
 from roadtwin_core.render import build_render_mesh
 from roadtwin_core.usd.town_reader import load_town
 
 REPO = Path(__file__).resolve().parents[1]
+mip_levels = pytest.importorskip("roadtwin_warp_render.raycast").mip_levels
 
 
 @pytest.fixture(scope="module")
@@ -65,8 +67,16 @@ def test_preview_town_matches_the_written_stage(composed):
         np.testing.assert_allclose(a[name][0], b[name][0], rtol=1e-4, err_msg=name)
         np.testing.assert_allclose(a[name][1], b[name][1], rtol=0, atol=1e-4, err_msg=name)
         np.testing.assert_allclose(a[name][2], b[name][2], rtol=0, atol=1e-4, err_msg=name)
-        np.testing.assert_array_equal(a[name][3].diffuse, b[name][3].diffuse)
-        assert (a[name][3].normal is None) == (b[name][3].normal is None)
+        # the preview decodes textures at a smaller MIP level: the renderer's own box pyramid of
+        # the full-size decode, at the preview's size
+        for key in ("diffuse", "roughness", "normal"):
+            full, small = getattr(a[name][3], key), getattr(b[name][3], key)
+            assert (full is None) == (small is None), (name, key)
+            if full is None:
+                continue
+            assert max(small.shape[:2]) <= PREVIEW_TEXELS and small.shape[:2] <= full.shape[:2]
+            level = next(m for m in mip_levels(full) if m.shape == small.shape)
+            np.testing.assert_allclose(small, level, rtol=0, atol=1e-6, err_msg=f"{name} {key}")
     # labels: the map mesh has the stage's triangles per class and per defect instance
     full = town.map_mesh()
     assert len(full.faces) == len(ref.faces)
@@ -74,3 +84,30 @@ def test_preview_town_matches_the_written_stage(composed):
         assert (np.asarray(full.classes)[full.face_class] == cls).sum() == \
             (np.asarray(ref.classes)[ref.face_class] == cls).sum(), cls
     assert np.bincount(full.face_instance).tolist() == np.bincount(ref.face_instance).tolist()
+
+
+def test_view_wedge_keeps_everything_the_camera_sees(composed):
+    """The preview's view mesh, culled to the camera's wedge, renders the same labels and depth
+    as the whole town from that camera (the renderer, warp backend, on both meshes)."""
+    from roadtwin_warp_render.renderer import WarpRenderer
+
+    from roadtwin_core.preview import AHEAD_M, RENDER_HFOV_DEG, RENDER_SIZE, choose_spot, view_half_angle
+    from roadtwin_core.render import Camera, Intrinsics, RenderParams, look_from
+
+    res, town = composed
+    town.looks_layer = res.outdir / "layers" / "looks.usda"
+    spot = choose_spot(town.lanes(), np.array([[p.x, p.y] for p in town.placements]))
+    whole = town.map_mesh()
+    z = whole.vertices[np.linalg.norm(whole.vertices[:, :2] - spot.xy, axis=1) < 3, 2].mean()
+    pitch = -np.arctan2(2.0, 0.5 * sum(AHEAD_M)) + np.radians(4.0)
+    cam = Camera(Intrinsics.from_fov(160, 96, RENDER_HFOV_DEG), look_from((*spot.xy, z + 2.0), spot.heading, pitch))
+    assert RENDER_SIZE[0] / RENDER_SIZE[1] == 160 / 96                 # same frustum as the preview's
+    culled = town.view_mesh(spot, range_m=1e6, half_angle=view_half_angle(cam))
+    assert len(culled.faces) < 0.8 * len(whole.faces)                  # it does cull
+    params = RenderParams(backend="warp", shade=False)
+    a = next(iter(WarpRenderer().render(whole, [cam], params)))
+    b = next(iter(WarpRenderer().render(culled, [cam], params)))
+    assert (a.face >= 0).mean() > 0.3
+    np.testing.assert_array_equal(a.semantic, b.semantic)
+    np.testing.assert_array_equal(a.instance, b.instance)
+    np.testing.assert_allclose(a.depth, b.depth, rtol=1e-4, atol=1e-3)

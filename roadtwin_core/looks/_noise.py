@@ -60,27 +60,38 @@ def stamp_stones(rng: np.random.Generator, n: int, count: int, r_lo: float, r_hi
     b = a / rng.uniform(1.0, aspect, count)
     ang = rng.uniform(0.0, np.pi, count)
     r_px = int(np.ceil(a.max() + 1.0))  # rim + anti-aliasing + sub-pixel centre
-    off = np.arange(-r_px, r_px + 1)
-    dy, dx = [o.ravel() for o in np.meshgrid(off, off, indexing="ij")]
+    # Each stone is tested over its own window, not the largest stone's: the anti-aliased rim
+    # reaches a * (1 + 0.5 / b) px from the centre, +1 for the sub-pixel centre (capped at the
+    # common window, so the pixels kept are exactly those of one window for all).
+    r_own = np.minimum(np.ceil(a * (1.0 + 0.5 / b) + 1.0), r_px).astype(np.int64)
     iy, ix = np.floor(cy).astype(np.int64), np.floor(cx).astype(np.int64)
     f32 = np.float32
-    py = (iy + 0.5 - cy).astype(f32)[:, None] + dy.astype(f32)  # pixel centre relative to the stone
-    pxx = (ix + 0.5 - cx).astype(f32)[:, None] + dx.astype(f32)
-    c, s = np.cos(ang).astype(f32)[:, None], np.sin(ang).astype(f32)[:, None]
-    lu, lv = (c * pxx + s * py) / a.astype(f32)[:, None], (-s * pxx + c * py) / b.astype(f32)[:, None]
-    rho2 = lu * lu + lv * lv  # 1 on the rim
-    b32 = b.astype(f32)[:, None]
-    keep = rho2 < (1.0 + 0.5 / b32) ** 2  # inside the anti-aliased edge
-    rho = np.sqrt(rho2[keep])
-    w = np.clip((1.0 - rho) * np.broadcast_to(b32, keep.shape)[keep] + 0.5, 0.0, 1.0)  # ~1 px AA edge
-    dome = np.sqrt(np.clip(1.0 - rho * rho, 0.0, 1.0))
-    stone, k = np.nonzero(keep)
-    idx = ((iy[stone] + dy[k]) % n) * n + (ix[stone] + dx[k]) % n
+    idx_parts, w_parts, dome_parts, stone_parts = [], [], [], []
+    for r in np.unique(r_own):
+        sel = np.flatnonzero(r_own == r)
+        off = np.arange(-r, r + 1)
+        dy, dx = [o.ravel() for o in np.meshgrid(off, off, indexing="ij")]
+        py = (iy[sel] + 0.5 - cy[sel]).astype(f32)[:, None] + dy.astype(f32)  # pixel centre relative to the stone
+        pxx = (ix[sel] + 0.5 - cx[sel]).astype(f32)[:, None] + dx.astype(f32)
+        c, s = np.cos(ang[sel]).astype(f32)[:, None], np.sin(ang[sel]).astype(f32)[:, None]
+        lu, lv = (c * pxx + s * py) / a[sel].astype(f32)[:, None], (-s * pxx + c * py) / b[sel].astype(f32)[:, None]
+        rho2 = lu * lu + lv * lv  # 1 on the rim
+        b32 = b[sel].astype(f32)[:, None]
+        keep = rho2 < (1.0 + 0.5 / b32) ** 2  # inside the anti-aliased edge
+        rho = np.sqrt(rho2[keep])
+        w_parts.append(np.clip((1.0 - rho) * np.broadcast_to(b32, keep.shape)[keep] + 0.5, 0.0, 1.0))  # ~1 px AA
+        dome_parts.append(np.sqrt(np.clip(1.0 - rho * rho, 0.0, 1.0)))
+        local, k = np.nonzero(keep)
+        stone = sel[local]
+        idx_parts.append(((iy[stone] + dy[k]) % n) * n + (ix[stone] + dx[k]) % n)
+        stone_parts.append(stone)
+    idx, w, dome = np.concatenate(idx_parts), np.concatenate(w_parts), np.concatenate(dome_parts)
+    stone = np.concatenate(stone_parts)
     cov = np.bincount(idx, w, minlength=n * n)
     safe = np.maximum(cov, 1e-9)
     dome_out = np.bincount(idx, w * dome, minlength=n * n) / safe
-    val = np.stack([np.bincount(idx, w * values[stone, k], minlength=n * n) / safe
-                    for k in range(values.shape[1])], axis=-1)
+    val = np.stack([np.bincount(idx, w * values[stone, j], minlength=n * n) / safe
+                    for j in range(values.shape[1])], axis=-1)
     shape = (n, n)
     return (np.minimum(cov, 1.0).reshape(shape).astype(np.float32), dome_out.reshape(shape).astype(np.float32),
             val.reshape(shape + (values.shape[1],)).squeeze(-1).astype(np.float32) if values.shape[1] == 1

@@ -3,7 +3,7 @@
 Why a cache and not a shared folder: every town folder stays self-contained (textures written
 next to the stage, DESIGN.md), so a cached set is *copied* in. The key is the seed, the size,
 and a fingerprint of the code that makes the bytes (every module of this package, plus the
-numpy, Pillow and zlib versions that generate and encode them), so a changed generator or
+numpy, Pillow and zlib versions and the PNG encoder that generate and encode them), so a changed generator or
 encoder misses the cache instead of serving stale textures. Each cached file's SHA-256 is in
 the manifest and checked on every copy; a damaged or partial entry is regenerated.
 
@@ -22,7 +22,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from .catalog import MaterialSpec
-from .textures import DEFAULT_SIZE, write_textures
+from .textures import DEFAULT_SIZE, png_encoder, write_textures
 
 _MANIFEST = "manifest.json"
 
@@ -49,7 +49,7 @@ def code_fingerprint() -> str:
     h = hashlib.sha256()
     for src in sorted(Path(__file__).parent.glob("*.py")):
         h.update(src.name.encode() + b"\0" + src.read_bytes() + b"\0")
-    h.update(f"numpy {numpy.__version__} pillow {PIL.__version__} zlib {zlib.ZLIB_VERSION}".encode())
+    h.update(f"numpy {numpy.__version__} pillow {PIL.__version__} png {png_encoder()} zlib {zlib.ZLIB_VERSION}".encode())
     return h.hexdigest()[:16]
 
 
