@@ -29,7 +29,7 @@ from shapely.geometry import LineString, Polygon
 from shapely.ops import substring
 
 from .errors import RoadtwinError
-from .geometry import vertical_ray_hits
+from .geometry import first_vertical_hits
 from .model import LaneMarking, MergedSegment, Placement, RoadSegment
 
 LIFT_M = 0.005           # paint floats this far above the road (no z-fighting, no visible gap)
@@ -207,10 +207,10 @@ class RoadPatch:
 
 
 def _heights_on(xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    hits = vertical_ray_hits(xy, tri)
-    found = hits.any(axis=1)
+    first = first_vertical_hits(xy, tri)
+    found = first >= 0
     z = np.full(len(xy), np.nan)
-    t = tri[hits.argmax(axis=1)[found]]
+    t = tri[first[found]]
     a, b, c = t[:, 0], t[:, 1], t[:, 2]
     e1, e2, r = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2], xy[found] - a[:, :2]
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
