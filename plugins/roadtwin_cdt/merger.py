@@ -368,29 +368,31 @@ def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float
     rim = boundary_edges(removed_faces)
     if not _may_enclose(removed_faces, rim):
         return []
-    union = shapely.union_all(shapely.polygons(xy[removed_faces]))
     faces = shapely.get_parts(shapely.polygonize(shapely.linestrings(xy[rim])))
-    seeds = []
-    for face in faces:
-        rp = face.representative_point()
-        if not union.covers(rp):
-            seeds.append((rp.x, rp.y))
-    return seeds
+    if not len(faces):
+        return []
+    # A point is covered by the cut iff one of its (closed) triangles covers it: no union needed.
+    rps = shapely.point_on_surface(faces)
+    covered_rp, _ = shapely.STRtree(shapely.polygons(xy[removed_faces])).query(rps, predicate="covered_by")
+    free = np.setdiff1d(np.arange(len(rps)), covered_rp)
+    return [tuple(c) for c in shapely.get_coordinates(rps[free]).tolist()]
 
 
 def _may_enclose(faces: np.ndarray, rim: np.ndarray) -> bool:
     """False when every connected cut region is a disk (one rim loop each, no pinched vertex):
     then nothing is enclosed and the costly island search can be skipped."""
-    n = int(faces.max()) + 1
+    used, local = np.unique(faces, return_inverse=True)      # the cut's vertices only
+    faces = local.reshape(-1, 3)
+    rim = np.searchsorted(used, rim)
+    n = len(used)
     if np.bincount(rim[:, 0], minlength=n).max(initial=0) > 1:
         return True  # a pinched rim vertex: loops are ambiguous, search properly
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    used = np.unique(faces)
-    n_regions = connected_components(graph, directed=False)[1][used]
+    n_regions = connected_components(graph, directed=False)[0]
     loops = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n))
     n_loops = connected_components(loops, directed=False)[1][np.unique(rim)]
-    return len(np.unique(n_loops)) != len(np.unique(n_regions))
+    return len(np.unique(n_loops)) != n_regions
 
 
 __all__ = ["CDTMerger", "CDTParams", "covered_triangles", "ring_cdt", "ring_cdt_split"]
