@@ -137,7 +137,9 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     for k, m in zip(order, done_in_order):
         merged[k] = m
     t_merge = time.perf_counter()
-    markings = build_markings(layout.markings, layout.segments, merged, placements)
+    # Markings on the local cores only: a Ray map starts and stops a cluster, costing more than they do.
+    markings = build_markings(layout.markings, layout.segments, merged, placements,
+                              executor=runner if runner.name == "local" else None)
     report("markings", 1, 1)
     t_markings = time.perf_counter()
 

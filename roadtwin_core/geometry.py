@@ -87,6 +87,57 @@ def vertical_ray_hits(origins_xy: np.ndarray, tri: np.ndarray, eps: float = 1e-1
     return ok[None] & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= 0)
 
 
+def vertical_ray_hits_pairs(origins_xy: np.ndarray, tri: np.ndarray, pair_origin: np.ndarray,
+                            pair_tri: np.ndarray, top: float | None = None, eps: float = 1e-12) -> np.ndarray:
+    """:func:`vertical_ray_hits` for chosen (ray, triangle) pairs only: one boolean per pair.
+
+    Why: callers batch every defect of a segment into one call, and most rays are nowhere near
+    most triangles. A pair whose ray misses the triangle's XY bounding box (grown by 1 um, far
+    above the 1e-12 barycentric tolerance) cannot hit; the others run the same Möller–Trumbore
+    arithmetic as :func:`vertical_ray_hits` element for element, so each answer is bit-identical.
+    ``top`` is the rays' start height (default: as :func:`vertical_ray_hits` computes it from ``tri``).
+    """
+    out = np.zeros(len(pair_origin), dtype=bool)
+    if not len(pair_origin):
+        return out
+    if top is None:
+        top = max(float(tri[..., 2].max()), 0.0) + 1.0
+    lo, hi = tri[:, :, :2].min(axis=1) - 1e-6, tri[:, :, :2].max(axis=1) + 1e-6
+    o_xy, t_lo, t_hi = origins_xy[pair_origin], lo[pair_tri], hi[pair_tri]
+    near = np.flatnonzero(((o_xy >= t_lo) & (o_xy <= t_hi)).all(axis=1))
+    if not len(near):
+        return out
+    d = np.array([0.0, 0.0, -1.0])
+    t3 = tri[pair_tri[near]]
+    v0, v1, v2 = t3[:, 0], t3[:, 1], t3[:, 2]
+    e1, e2 = v1 - v0, v2 - v0
+    pvec = np.cross(d, e2)
+    det = (e1 * pvec).sum(-1)
+    ok = np.abs(det) > eps
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    o = np.column_stack([o_xy[near], np.full(len(near), top)])
+    tvec = o - v0
+    u = (tvec * pvec).sum(-1) * inv
+    qvec = np.cross(tvec, e1)
+    v = (qvec * d).sum(-1) * inv
+    t = (qvec * e2).sum(-1) * inv
+    tol = 1e-12
+    out[near] = ok & (u >= -tol) & (v >= -tol) & (u + v <= 1 + tol) & (t >= 0)
+    return out
+
+
+def first_vertical_hits(origins_xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Index of the first triangle (in ``tri`` order) each downward ray hits, -1 for none: what
+    ``vertical_ray_hits(origins_xy, tri).argmax(axis=1)`` picks, with the (P, T) matrix replaced
+    by :func:`vertical_ray_hits_pairs` (bit-identical tests, only near pairs evaluated)."""
+    pair_p = np.repeat(np.arange(len(origins_xy)), len(tri))
+    pair_t = np.tile(np.arange(len(tri)), len(origins_xy))
+    hit = vertical_ray_hits_pairs(origins_xy, tri, pair_p, pair_t)
+    first = np.full(len(origins_xy), len(tri), dtype=np.int64)
+    np.minimum.at(first, pair_p[hit], pair_t[hit])
+    return np.where(first < len(tri), first, -1)
+
+
 class MeshHeights:
     """Height of the topmost triangle under XY points (NaN off the mesh): the one helper for
     "the surface under (x, y)" (cameras placed above the road, OpenCRG grids draped on it). A
@@ -180,4 +231,5 @@ def loops_from_edges(edges: np.ndarray) -> list[np.ndarray]:
 
 
 __all__ = ["boundary_edges", "edge_face_counts", "mesh_outline_polygon", "polygon_loops",
-           "subdivide_edge", "vertical_ray_hits", "MeshHeights", "triangle_min_angles", "loops_from_edges"]
+           "subdivide_edge", "vertical_ray_hits",
+           "vertical_ray_hits_pairs", "first_vertical_hits", "MeshHeights", "triangle_min_angles", "loops_from_edges"]

@@ -29,7 +29,7 @@ from shapely.geometry import LineString, Polygon
 from shapely.ops import substring
 
 from .errors import RoadtwinError
-from .geometry import vertical_ray_hits
+from .geometry import first_vertical_hits
 from .model import LaneMarking, MergedSegment, Placement, RoadSegment
 
 LIFT_M = 0.005           # paint floats this far above the road (no z-fighting, no visible gap)
@@ -207,10 +207,10 @@ class RoadPatch:
 
 
 def _heights_on(xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    hits = vertical_ray_hits(xy, tri)
-    found = hits.any(axis=1)
+    first = first_vertical_hits(xy, tri)
+    found = first >= 0
     z = np.full(len(xy), np.nan)
-    t = tri[hits.argmax(axis=1)[found]]
+    t = tri[first[found]]
     a, b, c = t[:, 0], t[:, 1], t[:, 2]
     e1, e2, r = b[:, :2] - a[:, :2], c[:, :2] - a[:, :2], xy[found] - a[:, :2]
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
@@ -277,15 +277,20 @@ def triangulate_paint(geom, spacing_m: float = SPACING_M, surface: RoadPatch | N
 
 def build_markings(markings: list[LaneMarking], segments: list[RoadSegment], merged: list[MergedSegment],
                    placements: list[Placement], *, lift_m: float = LIFT_M, cut_margin_m: float = CUT_MARGIN_M,
-                   spacing_m: float = SPACING_M) -> list[MarkingMesh]:
+                   spacing_m: float = SPACING_M, executor=None) -> list[MarkingMesh]:
     """Draped paint meshes, one per marking that keeps any paint (curbs and fully cut ones
-    are left out), in the order of ``markings``."""
+    are left out), in the order of ``markings``.
+
+    Which markings are drawn (a repeated line is drawn once) is decided here in order; cutting,
+    triangulating and draping each one is independent of the others, so an ``executor``
+    (:mod:`roadtwin_core.executors`) spreads that over the cores; results come back in order,
+    so the meshes do not depend on it."""
     if not markings:
         return []
     surface = RoadSurface(segments, merged)
     holes = [Polygon(p.world_footprint()).buffer(cut_margin_m) for p in placements]
     hole_tree = shapely.STRtree(holes) if holes else None
-    out = []
+    work = []
     painted: list = []                     # (colour, paint) of the markings kept so far
     for m in markings:
         pieces = line_paint(m)
@@ -295,21 +300,33 @@ def build_markings(markings: list[LaneMarking], segments: list[RoadSegment], mer
         if _repeats(paint, m.color, painted):
             continue
         painted.append((m.color, paint))
-        if hole_tree is not None:
-            near = hole_tree.query(paint)
-            if len(near):
-                paint = paint.difference(shapely.union_all([holes[i] for i in np.sort(near)]))
-        segment_ids = surface.near(paint)
-        if not len(segment_ids):
-            continue
-        paint = paint.intersection(surface.outline(segment_ids))
-        patch = surface.patch(segment_ids, paint)
-        xy, faces = triangulate_paint(paint, spacing_m, patch)
-        if not len(faces):
-            continue
-        z = patch.heights(xy) + lift_m
-        out.append(MarkingMesh(m.id, m.marking_type, m.color, np.column_stack([xy, z]), faces))
-    return out
+        near = np.sort(hole_tree.query(paint)) if hole_tree is not None else []
+        work.append((m, paint, [holes[i] for i in near]))
+    context = (surface, lift_m, spacing_m)
+    if executor is None:
+        meshes = [_drape_marking(context, item) for item in work]
+    else:
+        meshes = executor.map(_drape_marking, context, work)
+    return [mesh for mesh in meshes if mesh is not None]
+
+
+def _drape_marking(context, item) -> MarkingMesh | None:
+    """One marking's paint minus the defect holes near it, clipped, triangulated and draped
+    (module-level so process pools can ship it)."""
+    surface, lift_m, spacing_m = context
+    m, paint, near_holes = item
+    if near_holes:
+        paint = paint.difference(shapely.union_all(near_holes))
+    segment_ids = surface.near(paint)
+    if not len(segment_ids):
+        return None
+    paint = paint.intersection(surface.outline(segment_ids))
+    patch = surface.patch(segment_ids, paint)
+    xy, faces = triangulate_paint(paint, spacing_m, patch)
+    if not len(faces):
+        return None
+    z = patch.heights(xy) + lift_m
+    return MarkingMesh(m.id, m.marking_type, m.color, np.column_stack([xy, z]), faces)
 
 
 def _repeats(paint, color: str, painted: list, share: float = 0.5) -> bool:

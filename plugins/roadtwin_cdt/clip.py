@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from shapely.geometry import Polygon
 
 from roadtwin_core import Placement, RoadtwinError, polygon_area
-from roadtwin_core.geometry import boundary_edges, loops_from_edges, vertical_ray_hits
+from roadtwin_core.geometry import boundary_edges, first_vertical_hits, loops_from_edges
 
 
 @dataclass
@@ -171,9 +171,9 @@ def _interpolate(w: np.ndarray, faces: np.ndarray, xy: np.ndarray) -> np.ndarray
     z = np.zeros(len(xy))
     if len(near) == 0:
         return z
-    hits = vertical_ray_hits(xy, tri[near])
-    found = hits.any(axis=1)
-    f = faces[near[hits.argmax(axis=1)[found]]]
+    first = first_vertical_hits(xy, tri[near])
+    found = first >= 0
+    f = faces[near[first[found]]]
     pa, pb, pc = w[f[:, 0], :2], w[f[:, 1], :2], w[f[:, 2], :2]
     e1, e2, r = pb - pa, pc - pa, xy[found] - pa
     det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]

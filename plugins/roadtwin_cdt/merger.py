@@ -20,7 +20,7 @@ from scipy.sparse.csgraph import connected_components
 
 from roadtwin_core import (ComposeRules, MergedSegment, Placement, RoadSegment, RoadtwinError,
                            SurfaceModel, field)
-from roadtwin_core.geometry import boundary_edges, triangle_min_angles, vertical_ray_hits
+from roadtwin_core.geometry import boundary_edges, triangle_min_angles, vertical_ray_hits_pairs
 from roadtwin_core.remesh import even_segment_mesh
 
 from .clip import DefectPiece, clip_defect
@@ -65,6 +65,7 @@ class CDTMerger:
         h = rules.road_edge_m
         v2, faces, border = even_segment_mesh(segment, h)
         poly = segment.polygon()
+        shapely.prepare(poly)   # one contains() per defect below; same answers, faster
         clipped = [clip_defect(p, poly, v2, border, f"defect {p.instance_id!r} on segment {segment.id!r}")
                    for p in placements]
         owners = [i for i, pc in enumerate(clipped) if pc is not None]
@@ -102,8 +103,7 @@ class CDTMerger:
         # vertex a clipped piece shares bit-for-bit, e.g. a border vertex inside the footprint).
         piece_xyz = np.concatenate([pc.vertices for pc in pieces])
         keys = np.concatenate([v2, piece_xyz[:, :2]])
-        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
-        canon = first[inverse.ravel()]
+        canon = _first_equal_row(keys)
         rows = np.arange(len(keys))
         is_new = (canon == rows) & (rows >= len(v2))
         new_id = np.cumsum(is_new) - 1 + len(v2)
@@ -165,34 +165,60 @@ class CDTMerger:
         return MergedSegment(segment.id, np.column_stack([xy_used, z]), all_faces, owner, ring_index)
 
 
+def _first_equal_row(xy: np.ndarray) -> np.ndarray:
+    """For each row, the smallest index of a row with the same (x, y) values: what
+    ``first[inverse]`` of ``np.unique(xy, axis=0, return_index=True, return_inverse=True)`` is,
+    from one stable lexsort (``np.unique`` on rows sorts a structured view, several times slower)."""
+    order = np.lexsort((xy[:, 1], xy[:, 0]))
+    s = xy[order]
+    start = np.r_[True, (s[1:, 0] != s[:-1, 0]) | (s[1:, 1] != s[:-1, 1])]
+    group = np.cumsum(start) - 1
+    canon = np.empty(len(xy), dtype=np.int64)
+    canon[order] = order[start][group]
+    return canon
+
+
 def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: float, h: float) -> np.ndarray:
     """Triangles within ``margin`` of any defect region: vertices inside the grown region, or hit
-    by vertical rays cast from the grown region's rim."""
+    by vertical rays cast from the grown region's rim.
+
+    All defects of the segment at once (shapely's array functions, one batched Möller–Trumbore
+    call over the (ray, triangle) pairs whose bounding boxes meet): a Python loop per defect
+    cost more than the tests themselves on a segment with a hundred defects."""
     tri = np.zeros((len(faces), 3, 3))
     tri[:, :, :2] = v2[faces]
     tmin = tri[:, :, :2].min(axis=1)
     tmax = tri[:, :, :2].max(axis=1)
-    grown = [r.buffer(margin, quad_segs=4) for r in regions]
+    grown = shapely.buffer(np.asarray(regions, dtype=object), margin, quad_segs=4)
+    box = shapely.bounds(grown)                                          # (R, 4)
+    # Vertices strictly inside a grown region (candidates: inside its bounding box).
+    vin = ((v2[None, :, 0] >= box[:, None, 0]) & (v2[None, :, 0] <= box[:, None, 2])
+           & (v2[None, :, 1] >= box[:, None, 1]) & (v2[None, :, 1] <= box[:, None, 3]))
+    r_idx, v_idx = np.nonzero(vin)
     inside = np.zeros(len(v2), dtype=bool)
-    for g in grown:
-        x0, y0, x1, y1 = g.bounds
-        near = np.flatnonzero((v2[:, 0] >= x0) & (v2[:, 0] <= x1) & (v2[:, 1] >= y0) & (v2[:, 1] <= y1))
-        inside[near[shapely.contains_xy(g, v2[near, 0], v2[near, 1])]] = True
+    inside[v_idx[shapely.contains_xy(grown[r_idx], v2[v_idx, 0], v2[v_idx, 1])]] = True
     removed = inside[faces].any(axis=1)
+    # Rays from the grown rims. A defect clipped to a non-convex segment can fall apart into
+    # several polygons; rays from every part's rim suffice: a triangle that meets the footprint
+    # but has no vertex in the grown region is larger than the margin and so is crossed by it.
     step = max(min(margin, h) / 2.0, 1e-3)
-    for region, g in zip(regions, grown):
-        x0, y0, x1, y1 = g.bounds
-        cand = np.flatnonzero((tmax[:, 0] >= x0) & (tmin[:, 0] <= x1) & (tmax[:, 1] >= y0) & (tmin[:, 1] <= y1))
-        if len(cand) == 0:
-            continue
-        # A defect clipped to a non-convex segment can fall apart into several polygons.
-        # Rays from the grown rim suffice: a triangle that meets the footprint but has no vertex
-        # in the grown region is larger than the margin and so is crossed by that rim.
-        rims = [np.asarray(shapely.segmentize(gp.exterior, step).coords) for gp in getattr(g, "geoms", [g])]
-        origins = np.concatenate(rims)[:, :2]
-        for start in range(0, len(origins), 256):
-            hits = vertical_ray_hits(origins[start:start + 256], tri[cand])
-            removed[cand[hits.any(axis=0)]] = True
+    parts, part_region = shapely.get_parts(grown, return_index=True)
+    rims = shapely.segmentize(shapely.get_exterior_ring(parts), step)
+    origins, origin_part = shapely.get_coordinates(rims, return_index=True)
+    origin_region = part_region[origin_part]                             # sorted by region
+    tin = ((tmax[None, :, 0] >= box[:, None, 0]) & (tmin[None, :, 0] <= box[:, None, 2])
+           & (tmax[None, :, 1] >= box[:, None, 1]) & (tmin[None, :, 1] <= box[:, None, 3]))
+    pr, pt = np.nonzero(tin)                                             # (region, candidate triangle)
+    if not len(pr) or not len(origins):
+        return removed
+    n_orig = np.bincount(origin_region, minlength=len(regions))
+    first_orig = np.cumsum(n_orig) - n_orig
+    reps = n_orig[pr]
+    pair_tri = np.repeat(pt, reps)
+    within = np.arange(len(pair_tri)) - np.repeat(np.cumsum(reps) - reps, reps)
+    pair_origin = np.repeat(first_orig[pr], reps) + within
+    hits = vertical_ray_hits_pairs(origins, tri, pair_origin, pair_tri, top=1.0)
+    removed[pair_tri[hits]] = True
     return removed
 
 
@@ -342,29 +368,31 @@ def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float
     rim = boundary_edges(removed_faces)
     if not _may_enclose(removed_faces, rim):
         return []
-    union = shapely.union_all(shapely.polygons(xy[removed_faces]))
     faces = shapely.get_parts(shapely.polygonize(shapely.linestrings(xy[rim])))
-    seeds = []
-    for face in faces:
-        rp = face.representative_point()
-        if not union.covers(rp):
-            seeds.append((rp.x, rp.y))
-    return seeds
+    if not len(faces):
+        return []
+    # A point is covered by the cut iff one of its (closed) triangles covers it: no union needed.
+    rps = shapely.point_on_surface(faces)
+    covered_rp, _ = shapely.STRtree(shapely.polygons(xy[removed_faces])).query(rps, predicate="covered_by")
+    free = np.setdiff1d(np.arange(len(rps)), covered_rp)
+    return [tuple(c) for c in shapely.get_coordinates(rps[free]).tolist()]
 
 
 def _may_enclose(faces: np.ndarray, rim: np.ndarray) -> bool:
     """False when every connected cut region is a disk (one rim loop each, no pinched vertex):
     then nothing is enclosed and the costly island search can be skipped."""
-    n = int(faces.max()) + 1
+    used, local = np.unique(faces, return_inverse=True)      # the cut's vertices only
+    faces = local.reshape(-1, 3)
+    rim = np.searchsorted(used, rim)
+    n = len(used)
     if np.bincount(rim[:, 0], minlength=n).max(initial=0) > 1:
         return True  # a pinched rim vertex: loops are ambiguous, search properly
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    used = np.unique(faces)
-    n_regions = connected_components(graph, directed=False)[1][used]
+    n_regions = connected_components(graph, directed=False)[0]
     loops = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n))
     n_loops = connected_components(loops, directed=False)[1][np.unique(rim)]
-    return len(np.unique(n_loops)) != len(np.unique(n_regions))
+    return len(np.unique(n_loops)) != n_regions
 
 
 __all__ = ["CDTMerger", "CDTParams", "covered_triangles", "ring_cdt", "ring_cdt_split"]
