@@ -14,7 +14,7 @@ import numpy as np
 from .atomic import atomic_output_dir
 from .errors import RoadtwinError
 from .executors import make_executor
-from .looks import write_textures, write_textures_cached
+from .looks.prefetch import TexturePrefetch, TexturesNow
 from .markings import build_markings
 from .model import ComposeRules, DefectModel, Placement, TownLayout
 from .contracts import configured
@@ -92,8 +92,11 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             merger: str | None = None, surface: str | None = None, progress: Progress | None = None,
             pm: PluginManager | None = None, preview: bool = True, executor: str = "local",
             ray_address: str | None = None, workers: int | None = None,
-            library_dir: str | Path | None = None, merger_params: dict[str, Any] | None = None) -> ComposeResult:
-    """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's."""
+            library_dir: str | Path | None = None, merger_params: dict[str, Any] | None = None,
+            texture_writer: Callable[[Path, int], dict] | None = None) -> ComposeResult:
+    """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's.
+    ``texture_writer``: ``writer(folder, seed) -> specs`` to write the textures instead of the cached
+    set, which is otherwise made in a background process while the town is placed and merged."""
     t0 = time.perf_counter()
     layout_path = Path(layout_path)
     layout = read_layout(layout_path)
@@ -108,7 +111,15 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     if merger_params:  # --param: a configured copy, the registered merger stays as it was
         merger_impl = configured(merger_impl, apply_params(merger_impl.params, merger_params, f"merger {rules.merger}"))
     report = progress or (lambda *_: None)
+    with (TexturesNow(texture_writer, rules.seed) if texture_writer else TexturePrefetch(rules.seed)) as textures:
+        return _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, t0,
+                        preview=preview, executor=executor, ray_address=ray_address, workers=workers,
+                        library_dir=library_dir)
 
+
+def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules, pm: PluginManager, merger_impl,
+             report, textures: TexturePrefetch | TexturesNow, t0: float, *, preview: bool, executor: str, ray_address,
+             workers, library_dir) -> ComposeResult:
     library = build_library(rules, pm) if rules.defect_count else {}
     if rules.library and rules.defect_count:
         folder = Path(library_dir) if library_dir else (layout_path.parent / rules.library)
@@ -154,7 +165,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             library_files[m.name] = f"./library/{m.name}.usda"
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
                 "merger": rules.merger, "defectCount": len(placements)}
-        materials = write_textures_cached(tmp / "textures", rules.seed, generate=write_textures)
+        materials = textures.collect(tmp / "textures")
         t_textures = time.perf_counter()
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
                                          library_files, info, markings, materials))

@@ -264,12 +264,8 @@ def corpus(tmp_path_factory):
     _write_stereo(c)
     # The town: the planning scenario composed once; 64-texel textures keep it fast (the
     # textures' size is not what these cases test).
-    orig = compose_mod.write_textures
-    compose_mod.write_textures = functools.partial(write_textures, size=64)
-    try:
-        town = compose_mod.compose(LAYOUT, c / "town", preview=False, executor="serial").town
-    finally:
-        compose_mod.write_textures = orig
+    town = compose_mod.compose(LAYOUT, c / "town", preview=False, executor="serial",
+                               texture_writer=functools.partial(write_textures, size=64)).town
     (c / "sweep_dir").mkdir()
     (c / "sweep_dir" / "recommendations.json").write_text("{not json")
     (c / "sweep_nan").mkdir()

@@ -95,8 +95,7 @@ def out(layout, tmp_path_factory) -> Path:
                 lay.markings = layout.markings
                 return lay
             mp.setattr(compose_module, "read_layout", read_with_markings)
-        mp.setattr(compose_module, "write_textures", _with_maps(write_textures))
-        compose_module.compose(path, base / "out", preview=False)
+        compose_module.compose(path, base / "out", preview=False, texture_writer=_with_maps(write_textures))
     return base / "out"
 
 
