@@ -32,8 +32,19 @@ def mesh_outline_polygon(vertices: np.ndarray, faces: np.ndarray, what: str) -> 
     if not (np.abs(area2) > 1e-12).all():
         raise RoadtwinError(f"{what}: has degenerate (zero-area) triangles")
     polys = shapely.polygons(tris)
-    union = shapely.union_all(polys)
     total = float(np.abs(area2).sum() / 2)
+    # A mesh's triangles tile its outline (edge-to-edge, no overlaps), which is exactly the input
+    # coverage_union_all is made for (~6x faster than union_all). It does not check that, so its
+    # result is used only when it is one valid polygon of the triangles' total area; anything
+    # else goes through union_all and the checks below name what is wrong.
+    try:
+        fast = shapely.coverage_union_all(polys)
+    except shapely.errors.GEOSException:      # e.g. "incorrectly noded inputs": not a tiling
+        fast = None
+    if (fast is not None and fast.geom_type == "Polygon" and fast.is_valid
+            and abs(fast.area - total) <= 1e-9 * max(total, 1.0)):
+        return fast
+    union = shapely.union_all(polys)
     if abs(union.area - total) > 1e-6 * max(total, 1.0):
         raise RoadtwinError(f"{what}: triangles overlap (self-intersecting segment)")
     if union.geom_type != "Polygon":
