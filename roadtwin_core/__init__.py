@@ -49,12 +49,4 @@ def __dir__():
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "RoadtwinError", "MARKING_TYPES", "LaneMarking", "ComposeRules", "DefectModel", "FixedDefect", "MergedSegment", "Placement", "RoadSegment",
-    "TownLayout", "polygon_area", "triangle_areas", "check_params", "describe_params", "field",
-    "make_params", "PluginManager", "get_plugin_manager", "hookimpl", "reset_plugin_manager",
-    "FlatSurface", "GridSurface", "SampledSurface", "SumSurface", "SurfaceModel",
-    "iso8608_surface", "parse_surface", "__version__", "apply_params",
-    "DefectType", "Reconstructor", "Merger", "LayoutImporter", "Renderer", "RendererBase", "PhysicsBackend",
-    "Planner", "Exporter", "SurfaceSource",
-]
+__all__ = [*_WHERE, "__version__"]

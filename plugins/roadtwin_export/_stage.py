@@ -35,6 +35,7 @@ import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdSemantics, UsdShade
 
 from roadtwin_core import RoadtwinError
+from roadtwin_core.usd import fan_corners
 
 TAXONOMY = "class"
 TIME = Usd.TimeCode.EarliestTime()  # the default value, else the first time sample
@@ -207,17 +208,10 @@ def look_of(prim: Usd.Prim) -> Look | None:
 
 
 def triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """Fan triangulation of USD polygons (faces with fewer than 3 vertices are dropped)."""
-    counts = np.asarray(counts, dtype=np.int64)
-    starts = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.int64)
-    ntri = np.maximum(counts - 2, 0)
-    if not ntri.sum():
-        return np.zeros((0, 3), dtype=np.int64)
-    face_of = np.repeat(np.arange(len(counts)), ntri)
-    first = np.repeat(np.cumsum(ntri) - ntri, ntri)
-    k = np.arange(len(face_of)) - first + 1               # 1 .. count-2 within each polygon
-    s = starts[face_of]
-    return np.stack([indices[s], indices[s + k], indices[s + k + 1]], axis=1)
+    """Fan triangulation of USD polygons, as every roadtwin reader splits them (faces with fewer
+    than 3 vertices are dropped)."""
+    _face, corners = fan_corners(counts)
+    return np.asarray(indices, dtype=np.int64)[corners].reshape(-1, 3)
 
 
 def _instanced_parts(pi: UsdGeom.PointInstancer, cache: UsdGeom.XformCache, to_z_up: np.ndarray) -> list[Part]:

@@ -33,6 +33,7 @@ import numpy as np
 from pxr import Sdf, UsdGeom, UsdShade
 
 from ..errors import RoadtwinError
+from .stage import fan_corners
 
 _CHANNELS = {"rgb": (0, 1, 2), "rgba": (0, 1, 2), "r": (0,), "g": (1,), "b": (2,), "a": (3,)}
 _WRAPS = ("repeat", "clamp", "mirror", "black", "useMetadata")
@@ -210,13 +211,7 @@ def corner_st(mesh: UsdGeom.Mesh, name: str, counts: np.ndarray) -> np.ndarray |
     if vals is None:
         return None
     vals = np.asarray(vals, dtype=np.float32).reshape(-1, 2)
-    counts = np.asarray(counts, dtype=np.int64)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]) if len(counts) else np.zeros(0, np.int64)
-    tri_face = np.repeat(np.arange(len(counts)), np.maximum(counts - 2, 0))
-    k = np.arange(len(tri_face)) - np.repeat(np.cumsum(np.maximum(counts - 2, 0)) - np.maximum(counts - 2, 0),
-                                              np.maximum(counts - 2, 0))
-    s0 = starts[tri_face]
-    corners = np.stack([s0, s0 + k + 1, s0 + k + 2], axis=1)        # face-vertex (corner) indices
+    tri_face, corners = fan_corners(counts)                           # face-vertex (corner) indices
     interp = pv.GetInterpolation()
     if interp in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying):
         idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)

@@ -189,12 +189,20 @@ def read_mesh(mesh: UsdGeom.Mesh, world: bool = True, budget=None) -> tuple[np.n
             raise RoadtwinError(f"{where}: its transform has NaN or infinite entries")
         pts = pts @ m[:3, :3] + m[3, :3]
         check_points(pts, f"{where} (world space)")
-    # Fan split, vectorized: face f with c corners starting at s gives (s, s+k, s+k+1), k=1..c-2.
-    n_tri = counts - 2
+    _face, corners = fan_corners(counts)
+    return pts, idx[corners].reshape(-1, 3)
+
+
+def fan_corners(counts) -> tuple[np.ndarray, np.ndarray]:
+    """The fan split of USD polygons every reader shares: for each triangle, its polygon (T,) and
+    its three face-vertex positions (T, 3) into ``faceVertexIndices`` (face f with c corners
+    starting at s gives (s, s+k, s+k+1), k = 1..c-2; faces under 3 corners give none)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    n_tri = np.maximum(counts - 2, 0)
+    face = np.repeat(np.arange(len(counts)), n_tri)
     first = np.repeat(np.cumsum(counts) - counts, n_tri)
-    k = np.arange(int(n_tri.sum())) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
-    faces = np.stack([idx[first], idx[first + k], idx[first + k + 1]], axis=1) if len(k) else np.zeros((0, 3))
-    return pts, np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    k = np.arange(len(face)) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri) + 1
+    return face, np.stack([first, first + k, first + k + 1], axis=1).reshape(-1, 3)
 
 
 def _mesh_where(mesh: UsdGeom.Mesh) -> str:
