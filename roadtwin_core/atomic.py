@@ -76,6 +76,25 @@ def remove_stale(target: Path) -> list[Path]:
     return removed
 
 
+def output_path(path: str | Path, kind: str = "file") -> Path:
+    """An output ``path`` (``kind`` "file" or "dir") that can be created: not a directory where a
+    file goes (or the reverse), and no regular file on the way to it (chmod does not stop root,
+    a file in the way does)."""
+    path = Path(path)
+    if kind == "file" and path.is_dir():
+        raise RoadtwinError(f"{path}: is a directory, expected an output file")
+    if kind == "dir" and path.exists() and not path.is_dir():
+        raise RoadtwinError(f"{path}: exists and is not a directory")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise RoadtwinError(f"{path}: cannot be created, {parent} is not a directory")
+    if not os.access(parent, os.W_OK):
+        raise RoadtwinError(f"{path}: cannot be created, {parent} is not writable")
+    return path
+
+
 def make_parent(path: str | Path) -> Path:
     """Create the folder an output goes into; a path through a regular file (or any other reason
     the folder cannot be made) is the user's mistake, one line naming the output."""
@@ -137,4 +156,4 @@ def _unlink(paths: list[Path]) -> None:
             p.unlink()
 
 
-__all__ = ["atomic_files", "atomic_output_dir", "atomic_write_bytes", "make_parent", "remove_stale"]
+__all__ = ["atomic_files", "atomic_output_dir", "atomic_write_bytes", "make_parent", "output_path", "remove_stale"]

@@ -92,7 +92,7 @@ def compose(
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from .compose import compose as run_compose
     from .params import parse_param_options
-    from .usd.checks import output_path
+    from .atomic import output_path
 
     output_path(out, "dir")
 
@@ -150,9 +150,9 @@ def export(
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="output file (default: beside the stage)"),
 ) -> None:
     """Export a composed stage to another tool's format, keeping road and defects apart."""
+    from .atomic import output_path
     from .plugins import get_plugin_manager
-
-    from .usd.checks import check_stage_meshes, open_stage, output_path
+    from .usd.checks import check_stage_meshes, open_stage
 
     exporter = get_plugin_manager().get("exporters", format)
     # unreadable, badly composed or malformed input: one line naming it, exit 2
@@ -174,7 +174,7 @@ def import_layout(
 
     from .params import cli_params
     from .plugins import get_plugin_manager
-    from .usd.checks import output_path
+    from .atomic import output_path
     from .usd.layout_io import write_layout
 
     imp = get_plugin_manager().get("layout_importers", importer)

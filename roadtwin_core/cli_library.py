@@ -186,7 +186,7 @@ def add_asset(src: Path, folder: Path, force: bool = False) -> Path:
     info = read_interface(src)
     read_defect_asset(src)  # geometry, boundary loop and flags must read too
     payloads = _payload_files(src, info)
-    from .usd.checks import output_path
+    from .atomic import output_path
 
     output_path(folder, "dir")
     try:

@@ -39,7 +39,7 @@ def plan(
     from .apps.plan import plan_stage
     from .apps.plan.report import print_run
     from .planning import parse_pose
-    from .usd.checks import output_path
+    from .atomic import output_path
     from .vehicle import load_full_vehicle, paper_car
 
     output_path(out, "dir")

@@ -55,7 +55,7 @@ def reconstruct_defects(
     from .params import make_params
     from .plugins import get_plugin_manager
 
-    from .usd.checks import output_path
+    from .atomic import output_path
 
     output_path(out, "dir")
     if disparity is not None and (left is not None or right is not None):
@@ -135,7 +135,7 @@ def reconstruct_surface(
     k = _floats(K, (4,), "--K")
     if out.suffix not in (".usda", ".usd", ".usdc"):
         raise RoadtwinError(f"{out}: the surface asset must be a .usda, .usd or .usdc file")
-    from .usd.checks import output_path
+    from .atomic import output_path
 
     output_path(out)
     labels = None

@@ -50,7 +50,7 @@ def sweep(
     from .apps.sweep.setup import load_scenario, sim_params
     from .atomic import atomic_output_dir
     from .plugins import get_plugin_manager
-    from .usd.checks import output_path
+    from .atomic import output_path
     from .vehicle import VehicleParams, load_full_vehicle
 
     output_path(out, "dir")

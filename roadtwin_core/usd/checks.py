@@ -162,22 +162,3 @@ def check_stage_meshes(stage: Usd.Stage, path: str | Path) -> int:
             read_mesh(UsdGeom.Mesh(prim), budget=budget)
             n += 1
     return n
-
-
-def output_path(path: str | Path, kind: str = "file") -> Path:
-    """An output ``path`` (``kind`` "file" or "dir") that can be created: not a directory where a
-    file goes (or the reverse), and no regular file on the way to it (chmod does not stop root,
-    a file in the way does)."""
-    path = Path(path)
-    if kind == "file" and path.is_dir():
-        raise RoadtwinError(f"{path}: is a directory, expected an output file")
-    if kind == "dir" and path.exists() and not path.is_dir():
-        raise RoadtwinError(f"{path}: exists and is not a directory")
-    parent = path.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        raise RoadtwinError(f"{path}: cannot be created, {parent} is not a directory")
-    if not os.access(parent, os.W_OK):
-        raise RoadtwinError(f"{path}: cannot be created, {parent} is not writable")
-    return path

@@ -71,7 +71,7 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     t0 = time.perf_counter()
     report = progress or (lambda *_: None)
     stage = Path(stage)
-    from ...usd.checks import output_path
+    from ...atomic import output_path
 
     output_path(out, "dir")
     preset = rig_preset(rig) if rig is not None else None
