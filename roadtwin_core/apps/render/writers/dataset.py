@@ -67,6 +67,13 @@ class DatasetWriter:
             (self.root / "images_right").mkdir(parents=True, exist_ok=True)
         self.writers = [writer(self) for name, writer in WRITERS.items() if name in self.formats]
 
+    def _write_view(self, folder: str, stem: str, rgb8: np.ndarray, image_bytes: bytes | None) -> str:
+        """One camera's image: the JPEG bytes a sensor model encoded, else ``rgb8`` as PNG; returns
+        its path relative to the dataset root."""
+        rel = f"{folder}/{stem}{'.jpg' if image_bytes is not None else '.png'}"
+        write_image(self.root / rel, rgb8, image_bytes)
+        return rel
+
     def add(self, frame: Frame, rgb8: np.ndarray | None = None, image_bytes: bytes | None = None,
             rgb8_right: np.ndarray | None = None, image_bytes_right: bytes | None = None,
             record: dict | None = None) -> None:
@@ -76,20 +83,15 @@ class DatasetWriter:
         k = len(self.frames_meta)
         stem = f"{k:06d}"
         files: dict[str, str] = {}
-        root = self.root
         if (frame.rgb is None and rgb8 is None) or frame.depth is None or frame.semantic is None:
             raise RoadtwinError("renderer returned a frame without rgb, depth or semantic")
         rgb8 = to_srgb8(frame.rgb) if rgb8 is None else rgb8
-        ext = ".jpg" if image_bytes is not None else ".png"
-        write_image(root / "images" / f"{stem}{ext}", rgb8, image_bytes)
-        files["rgb"] = f"images/{stem}{ext}"
+        files["rgb"] = self._write_view("images", stem, rgb8, image_bytes)
         if self.baseline:
             if (frame.rgb_right is None and rgb8_right is None) or frame.disparity is None or frame.occluded is None:
                 raise RoadtwinError("renderer returned a stereo frame without right image or disparity")
             rgb8_right = to_srgb8(frame.rgb_right) if rgb8_right is None else rgb8_right
-            ext_r = ".jpg" if image_bytes_right is not None else ".png"
-            write_image(root / "images_right" / f"{stem}{ext_r}", rgb8_right, image_bytes_right)
-            files["rgb_right"] = f"images_right/{stem}{ext_r}"
+            files["rgb_right"] = self._write_view("images_right", stem, rgb8_right, image_bytes_right)
         extra: dict = {}
         for w in self.writers:
             extra.update(w.add(k, stem, frame, files))
