@@ -1,6 +1,7 @@
 """The composer: layout + defect library + rules -> a town stage (DESIGN.md data flow)."""
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import time
@@ -13,15 +14,17 @@ import numpy as np
 
 from .atomic import atomic_output_dir
 from .errors import RoadtwinError
-from .executors import make_executor
+from .executors import SerialExecutor, make_executor
 from .looks.prefetch import TexturePrefetch, TexturesNow
 from .markings import build_markings
 from .model import ComposeRules, DefectModel, Placement, TownLayout
 from .contracts import configured
 from .params import apply_params, make_params
 from .placement import lane_length_km, place_defects
+from .preview_job import render_preview, warm_up_renderer
 from .plugins import PluginManager, get_plugin_manager
 from .remesh import coarsen_defect
+from .sidecar import Sidecar
 from .surface import parse_surface
 from .usd.layout_io import read_layout
 from .usd.library import write_defect_asset
@@ -38,23 +41,27 @@ class ComposeResult:
     summary: dict
 
 
-def build_library(rules: ComposeRules, pm: PluginManager) -> dict[str, list[DefectModel]]:
+def build_library(rules: ComposeRules, pm: PluginManager, runner=None) -> dict[str, list[DefectModel]]:
     """``models_per_type`` seeded models per weighted type (the paper draws 1,000 instances from
     53 models); each model's randomness depends only on (seed, type, index). Each is coarsened to
-    the road mesh's edge length (:func:`~roadtwin_core.remesh.coarsen_defect`)."""
+    the road mesh's edge length (:func:`~roadtwin_core.remesh.coarsen_defect`), the costly part:
+    ``runner`` (a local executor) spreads the models over its cores."""
+    items = [(t, k) for t in sorted(rules.type_weights) if rules.type_weights[t] > 0 for k in range(rules.models_per_type)]
+    models = (runner or SerialExecutor()).map(_library_model, (pm, rules), items)
     library: dict[str, list[DefectModel]] = {}
-    for t in sorted(rules.type_weights):
-        if rules.type_weights[t] <= 0:
-            continue
-        dtype = pm.get("defect_types", t)
-        models = []
-        for k in range(rules.models_per_type):
-            rng = np.random.default_rng([rules.seed, sum(map(ord, t)), k])
-            params = dtype.sample_params(rng)
-            # level of detail tied to the road mesh: ~3x fewer triangles, volume within 0.5 %
-            models.append(coarsen_defect(dtype.generate(params, rng, f"{t}_{k:02d}"), rules.road_edge_m))
-        library[t] = models
+    for (t, _), model in zip(items, models):
+        library.setdefault(t, []).append(model)
     return library
+
+
+def _library_model(context, item) -> DefectModel:
+    pm, rules = context
+    t, k = item
+    dtype = pm.get("defect_types", t)
+    rng = np.random.default_rng([rules.seed, sum(map(ord, t)), k])
+    params = dtype.sample_params(rng)
+    # level of detail tied to the road mesh: ~3x fewer triangles, volume within 0.5 %
+    return coarsen_defect(dtype.generate(params, rng, f"{t}_{k:02d}"), rules.road_edge_m)
 
 
 def add_library_folder(library: dict[str, list[DefectModel]], rules: ComposeRules, folder: Path) -> ComposeRules:
@@ -96,31 +103,77 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             texture_writer: Callable[[Path, int], dict] | None = None) -> ComposeResult:
     """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's.
     ``texture_writer``: ``writer(folder, seed) -> specs`` to write the textures instead of the cached
-    set, which is otherwise made in a background process while the town is placed and merged."""
+    set, which is otherwise made in a helper process while the town is placed and merged.
+
+    The preview runs in that helper process too (:mod:`~roadtwin_core.preview_job`), on the second
+    core while the stage is written and validated, unless a plugin manager ``pm`` is given: that
+    one cannot travel to another process, so the preview then runs here, at the end."""
     t0 = time.perf_counter()
-    layout_path = Path(layout_path)
-    layout = read_layout(layout_path)
-    rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface,
-                                 library=str(library_dir) if library_dir else None).check(
-        f"{layout_path}")
-    if defects is None and rules.density_per_km > 0:
-        rules = rules.replace(defect_count=int(round(rules.density_per_km * lane_length_km(layout.segments, rules.kinds))))
-    layout.rules = rules
-    pm = pm or get_plugin_manager()
-    merger_impl = pm.get("mergers", rules.merger)
-    if merger_params:  # --param: a configured copy, the registered merger stays as it was
-        merger_impl = configured(merger_impl, apply_params(merger_impl.params, merger_params, f"merger {rules.merger}"))
-    report = progress or (lambda *_: None)
-    with (TexturesNow(texture_writer, rules.seed) if texture_writer else TexturePrefetch(rules.seed)) as textures:
-        return _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, t0,
-                        preview=preview, executor=executor, ray_address=ray_address, workers=workers,
-                        library_dir=library_dir)
+    preview_here = pm is not None
+    with contextlib.ExitStack() as stack:
+        # Started first: the helper's interpreter boots while the layout is read.
+        side = stack.enter_context(Sidecar()) if (not texture_writer or (preview and not preview_here)) else None
+        layout_path = Path(layout_path)
+        layout = read_layout(layout_path)
+        rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface,
+                                     library=str(library_dir) if library_dir else None).check(
+            f"{layout_path}")
+        if defects is None and rules.density_per_km > 0:
+            rules = rules.replace(defect_count=int(round(rules.density_per_km * lane_length_km(layout.segments, rules.kinds))))
+        layout.rules = rules
+        pm = pm or get_plugin_manager()
+        merger_impl = pm.get("mergers", rules.merger)
+        if merger_params:  # --param: a configured copy, the registered merger stays as it was
+            merger_impl = configured(merger_impl, apply_params(merger_impl.params, merger_params, f"merger {rules.merger}"))
+        report = progress or (lambda *_: None)
+        textures = stack.enter_context(TexturesNow(texture_writer, rules.seed) if texture_writer
+                                       else TexturePrefetch(rules.seed, side))
+        previewer = None
+        if preview:
+            previewer = _HereOrThere(pm, None if preview_here else side)
+        return _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
+                        executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir)
+
+
+class _HereOrThere:
+    """The preview: started as soon as the looks layer is written, in the helper process when
+    there is one (the second core), else run here once the stage is validated."""
+
+    def __init__(self, pm: PluginManager, side: Sidecar | None) -> None:
+        self.pm, self.side = pm, side
+        self.warm = side.submit(warm_up_renderer) if side is not None else None
+        self.job = None
+
+    def start(self, path: Path, town_stage: Path, title: str, town) -> None:
+        if self.side is not None:
+            self.job = self.side.submit(render_preview, path, town_stage, title, town)
+        else:
+            self.job = (path, town_stage, title, town)
+
+    def finish(self) -> dict:
+        """Timings: ``preview_s`` (the preview's own time), ``preview_wait_s`` (what the composer
+        waited for it after validating)."""
+        t0 = time.perf_counter()
+        if self.side is not None:
+            self.side.result(self.warm)
+            took = self.side.result(self.job)["preview_s"]
+        else:
+            from .preview import write_preview
+
+            path, town_stage, title, town = self.job
+            write_preview(path, town_stage, pm=self.pm, title=title, town=town)
+            took = time.perf_counter() - t0
+        return {"preview_s": took, "preview_wait_s": time.perf_counter() - t0}
 
 
 def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules, pm: PluginManager, merger_impl,
-             report, textures: TexturePrefetch | TexturesNow, t0: float, *, preview: bool, executor: str, ray_address,
-             workers, library_dir) -> ComposeResult:
-    library = build_library(rules, pm) if rules.defect_count else {}
+             report, textures: TexturePrefetch | TexturesNow, previewer: _HereOrThere | None, t0: float, *,
+             executor: str, ray_address, workers, library_dir) -> ComposeResult:
+    runner = make_executor(executor, ray_address, workers)
+    # Library and markings on the local cores only: a Ray map starts and stops a cluster, costing
+    # more than they do.
+    local = runner if runner.name == "local" else None
+    library = build_library(rules, pm, local) if rules.defect_count else {}
     if rules.library and rules.defect_count:
         folder = Path(library_dir) if library_dir else (layout_path.parent / rules.library)
         rules = add_library_folder(library, rules, folder)
@@ -138,7 +191,6 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
             by_segment.setdefault(sid, []).append(i)
     owners = [by_segment.get(seg.id, []) for seg in layout.segments]
     work = [(seg, [placements[i] for i in idx]) for seg, idx in zip(layout.segments, owners)]
-    runner = make_executor(executor, ray_address, workers)
     # Costliest first (defects dominate a segment's merge), so no core idles on one big segment
     # at the end; results go back to layout order, so the bytes do not depend on it.
     order = sorted(range(len(work)), key=lambda k: (-len(work[k][1]), -len(work[k][0].faces), k))
@@ -148,13 +200,11 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
     for k, m in zip(order, done_in_order):
         merged[k] = m
     t_merge = time.perf_counter()
-    # Markings on the local cores only: a Ray map starts and stops a cluster, costing more than they do.
-    markings = build_markings(layout.markings, layout.segments, merged, placements,
-                              executor=runner if runner.name == "local" else None)
+    markings = build_markings(layout.markings, layout.segments, merged, placements, executor=local)
     report("markings", 1, 1)
     t_markings = time.perf_counter()
 
-    with atomic_output_dir(outdir) as tmp:
+    with atomic_output_dir(outdir) as tmp, _stop_helper_on_failure(previewer):
         (tmp / "layout").mkdir()
         shutil.copyfile(layout_path, tmp / "layout" / layout_path.name)
         (tmp / "library").mkdir()
@@ -167,8 +217,17 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
                 "merger": rules.merger, "defectCount": len(placements)}
         materials = textures.collect(tmp / "textures")
         t_textures = time.perf_counter()
+
+        def start_preview():
+            from .preview_scene import PreviewTown
+
+            previewer.start(tmp / "preview.png", tmp / "town.usda",
+                            f"{layout.name}: {len(layout.segments)} segments, {len(placements)} defects",
+                            PreviewTown(layout, merged, owners, placements, markings, tmp / "layers/looks.usda"))
+
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
-                                         library_files, info, markings, materials))
+                                         library_files, info, markings, materials),
+                          on_looks=start_preview if previewer is not None else None)
         report("write", 1, 1)
         t_written = time.perf_counter()
         findings = validate_stage(town)
@@ -182,17 +241,23 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
                             "validate_s": t_write - t_written})
         summary["markings"] = len(markings)
         summary["materials"] = len(materials)
-        if preview:
-            from .preview import write_preview
-            from .preview_scene import PreviewTown
-
-            write_preview(tmp / "preview.png", town, pm=pm,
-                          title=f"{layout.name}: {len(layout.segments)} segments, {len(placements)} defects",
-                          town=PreviewTown(layout, merged, owners, placements, markings, tmp / "layers/looks.usda"))
-            summary["timings_s"]["preview_s"] = round(time.perf_counter() - t_write, 3)
+        if previewer is not None:
+            summary["timings_s"].update({k: round(v, 3) for k, v in previewer.finish().items()})
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     outdir = Path(outdir).resolve()
     return ComposeResult(outdir, outdir / "town.usda", summary)
+
+
+@contextlib.contextmanager
+def _stop_helper_on_failure(previewer: _HereOrThere | None):
+    """A failed compose stops the helper before its staging folder is removed: no preview is
+    written into a folder that is going away."""
+    try:
+        yield
+    except BaseException:
+        if previewer is not None and previewer.side is not None:
+            previewer.side.close()
+        raise
 
 
 def _merge_segment(context, item):

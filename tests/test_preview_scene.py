@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from roadtwin_core.compose import compose
+from roadtwin_core.plugins import get_plugin_manager
 from roadtwin_core.preview_scene import PREVIEW_TEXELS
 from roadtwin_core.render import build_render_mesh
 from roadtwin_core.usd.town_reader import load_town
@@ -30,8 +31,9 @@ def composed(tmp_path_factory):
 
     preview.write_preview = spy
     try:
+        # a plugin manager of the caller's keeps the preview in this process, where the spy sees it
         res = compose(REPO / "stages" / "town.usda", tmp_path_factory.mktemp("pv") / "out", defects=40, seed=3,
-                      executor="serial")
+                      executor="serial", pm=get_plugin_manager())
     finally:
         preview.write_preview = real
     return res, captured["town"]

@@ -1,41 +1,44 @@
 """Textures made while the town is placed and merged. Generating a texture set costs ~2.5 s of
 one core on a cold cache (a new user's first compose), while placement runs on one core and the
-other idles: a spawned process (a fresh interpreter: no forked threads, a small footprint) writes
-the set into a private staging folder, and the composer moves it next to the stage when it gets
-there. Same seed, same bytes: the files are exactly what :func:`write_textures_cached` writes.
+other idles: the composer's helper process (:class:`~roadtwin_core.sidecar.Sidecar`, a fresh
+interpreter) writes the set into a private staging folder, and the composer moves it next to the
+stage when it gets there. Same seed, same bytes: the files are exactly what
+:func:`write_textures_cached` writes.
 """
 from __future__ import annotations
 
-import multiprocessing
 import shutil
 import tempfile
 from pathlib import Path
 
-from .cache import write_textures_cached
 from .catalog import MaterialSpec
 
 __all__ = ["TexturePrefetch", "TexturesNow"]
 
 
-class TexturePrefetch:
-    """``with TexturePrefetch(seed) as tex: ... specs = tex.collect(folder)``."""
+def _write_cached(folder: Path, seed: int) -> dict[str, MaterialSpec]:
+    """In the helper process: the generators (scipy.fft and more) are imported there, not here."""
+    from .cache import write_textures_cached
 
-    def __init__(self, seed: int) -> None:
+    return write_textures_cached(folder, seed)
+
+
+class TexturePrefetch:
+    """``with TexturePrefetch(seed, sidecar) as tex: ... specs = tex.collect(folder)``; the
+    sidecar's owner stops it (a compose that fails early does not wait for the set)."""
+
+    def __init__(self, seed: int, sidecar) -> None:
         self._stage = Path(tempfile.mkdtemp(prefix="roadtwin-textures-"))
-        self._pool = multiprocessing.get_context("spawn").Pool(1)
-        self._result = self._pool.apply_async(write_textures_cached, (self._stage / "textures", seed))
+        self._sidecar = sidecar
+        self._ticket = sidecar.submit(_write_cached, self._stage / "textures", seed)
 
     def collect(self, folder: str | Path) -> dict[str, MaterialSpec]:
         """Wait for the set and move it to ``folder`` (which must not exist yet)."""
-        specs = self._result.get()
-        self._pool.terminate()          # its work is done: no idle interpreter through the rest
-        self._pool.join()
+        specs = self._sidecar.result(self._ticket)
         shutil.move(str(self._stage / "textures"), str(folder))
         return specs
 
     def close(self) -> None:
-        self._pool.terminate()          # a compose that failed early does not wait for the set
-        self._pool.join()
         shutil.rmtree(self._stage, ignore_errors=True)
 
     def __enter__(self) -> "TexturePrefetch":

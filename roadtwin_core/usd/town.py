@@ -24,6 +24,7 @@ reference: a referenced crate's points would lose to the layout's planar ones.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 from pathlib import Path
 
 import numpy as np
@@ -154,15 +155,36 @@ def split_by_owner(m: MergedSegment) -> dict[int, tuple[np.ndarray, np.ndarray]]
             for r, (o, s, e, ks, ke) in enumerate(zip(owners, starts, ends, key_start, key_end))}
 
 
-def write_town(outdir: Path, parts: TownParts) -> Path:
+def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | None = None) -> Path:
     """Every layer but the small root is authored at the Sdf level, each in one change block: no
-    stage recomposes while tens of thousands of prims are written."""
+    stage recomposes while tens of thousands of prims are written. ``on_looks()`` is called once
+    ``layers/looks.usda`` is complete (it is written first)."""
     lay = parts.layout
     root = f"/{lay.name}"
     (outdir / "layers").mkdir(exist_ok=True)
     doc = f"roadtwin town composed from {Path(lay.source).name}"
     split = [split_by_owner(m) for m in parts.merged]
     empty = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+
+    pieces: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = {}
+    for seg, parts_of, own in zip(lay.segments, split, parts.owners):
+        for local, global_index in enumerate(own):
+            if local in parts_of:
+                pieces.setdefault(global_index, []).append((seg.id, *parts_of[local]))
+    marking_names = marking_prim_names(parts.markings)
+
+    # Looks first: ``on_looks`` may hand the town to a preview that reads the materials while the
+    # heavy layers are still being written.
+    looks = _readable_layer(outdir, "looks", lay.name, doc + ": materials and their bindings")
+    bindings = [(seg.prim_path, kind_material(seg.kind)) for seg in lay.segments if seg.kind not in VARIANT_KINDS]
+    for i, p in enumerate(parts.placements):
+        material = defect_material(p.model.defect_type)
+        bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
+    bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
+    write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
+    looks.Save()
+    if on_looks is not None:
+        on_looks()
 
     roads = _readable_layer(outdir, "roads", lay.name, doc + ": merged road surfaces")
     geometry = _geometry_layer(outdir, "roads", lay.name, doc)
@@ -174,11 +196,6 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
             _no_subdivision(Sdf.CreatePrimInLayer(roads, Sdf.Path(seg.prim_path)))
     _save(roads, geometry)
 
-    pieces: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = {}
-    for seg, parts_of, own in zip(lay.segments, split, parts.owners):
-        for local, global_index in enumerate(own):
-            if local in parts_of:
-                pieces.setdefault(global_index, []).append((seg.id, *parts_of[local]))
     defects = _readable_layer(outdir, "defects", lay.name, doc + ": defect instances")
     geometry = _geometry_layer(outdir, "defects", lay.name, doc)
     with Sdf.ChangeBlock():
@@ -198,7 +215,6 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
                 _no_subdivision(define_prim(defects, f"{root}/Defects/{p.instance_id}/{seg_id}", "Mesh"))
     _save(defects, geometry)
 
-    marking_names = marking_prim_names(parts.markings)
     _write_markings(outdir, lay.name, doc, parts.markings, marking_names)
 
     physics = _readable_layer(outdir, "physics", lay.name, doc + ": static road collision")
@@ -224,14 +240,6 @@ def write_town(outdir: Path, parts: TownParts) -> Path:
             author_labels(sem, path, tags)
     sem.Save()
 
-    looks = _readable_layer(outdir, "looks", lay.name, doc + ": materials and their bindings")
-    bindings = [(seg.prim_path, kind_material(seg.kind)) for seg in lay.segments if seg.kind not in VARIANT_KINDS]
-    for i, p in enumerate(parts.placements):
-        material = defect_material(p.model.defect_type)
-        bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
-    bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
-    write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
-    looks.Save()
 
     town_path = outdir / "town.usda"
     town = new_layer(town_path, lay.name, doc)  # a layer, not a stage: a stage would compose the whole town here

@@ -1,0 +1,97 @@
+"""The composer's helper process: jobs run in order on another core; handing a job over never waits
+for an earlier one; errors come back as errors; a dead helper is reported, not waited for; a compose
+that fails stops its helper and leaves nothing behind."""
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import signal
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from roadtwin_core import compose as compose_module
+from roadtwin_core.errors import RoadtwinError
+from roadtwin_core.sidecar import Sidecar
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def wait_for_file(path: Path, limit_s: float = 20.0) -> float:
+    t0 = time.perf_counter()
+    while not path.exists():
+        if time.perf_counter() - t0 > limit_s:
+            raise TimeoutError(path)
+        time.sleep(0.01)
+    return time.perf_counter() - t0
+
+
+def checksum(a: np.ndarray) -> int:
+    return int(a.sum())
+
+
+def fail_plainly(message: str):
+    raise RoadtwinError(message)
+
+
+def crash():
+    raise ZeroDivisionError("boom")
+
+
+def test_jobs_run_in_order_and_handing_over_does_not_wait(tmp_path):
+    gate = tmp_path / "gate"
+    big = np.ones(40_000_000 // 8)               # 40 MB: far more than a pipe holds
+    with Sidecar() as side:
+        first = side.submit(wait_for_file, gate)
+        t0 = time.perf_counter()
+        second = side.submit(checksum, big)      # the helper is blocked in the first job
+        handed_over_s = time.perf_counter() - t0
+        assert handed_over_s < 2.0
+        gate.touch()
+        assert side.result(second) == len(big)   # results can be collected in any order
+        assert side.result(first) >= 0.0
+
+
+def test_errors_come_back_as_errors():
+    with Sidecar() as side:
+        bad_input, bug = side.submit(fail_plainly, "layout.usda: no roads"), side.submit(crash)
+        with pytest.raises(RoadtwinError, match="^layout.usda: no roads$"):
+            side.result(bad_input)
+        with pytest.raises(RuntimeError, match="ZeroDivisionError: boom"):
+            side.result(bug)
+
+
+def test_a_dead_helper_is_reported_not_waited_for(tmp_path):
+    with Sidecar() as side:
+        ticket = side.submit(wait_for_file, tmp_path / "never")
+        time.sleep(0.5)
+        os.kill(side._proc.pid, signal.SIGKILL)
+        t0 = time.perf_counter()
+        with pytest.raises(RoadtwinError, match="helper process ended unexpectedly"):
+            side.result(ticket)
+        assert time.perf_counter() - t0 < 5.0
+
+
+def test_a_failed_compose_stops_its_helper_and_writes_nothing(tmp_path, monkeypatch):
+    def fails_after_the_preview_started(town):
+        raise RoadtwinError("validation refused on purpose")
+
+    monkeypatch.setattr(compose_module, "validate_stage", fails_after_the_preview_started)
+    out = tmp_path / "out"
+    with pytest.raises(RoadtwinError, match="on purpose"):
+        compose_module.compose(REPO / "stages" / "town.usda", out, defects=5, seed=1, executor="serial")
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    assert multiprocessing.active_children() == []
+
+
+def test_the_preview_made_in_the_helper_is_in_the_output(tmp_path):
+    res = compose_module.compose(REPO / "stages" / "town.usda", tmp_path / "out", defects=5, seed=1,
+                                 executor="serial")
+    png = res.outdir / "preview.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    timings = json.loads((res.outdir / "summary.json").read_text())["timings_s"]
+    assert timings["preview_s"] > 0 and 0 <= timings["preview_wait_s"]
+    assert multiprocessing.active_children() == []
