@@ -37,6 +37,18 @@ def atomic_output_dir(outdir: str | Path):
     shutil.rmtree(old, ignore_errors=True)
 
 
+def scratch_dir(target: str | Path, what: str) -> Path:
+    """A fresh hidden folder beside ``target`` for work that ends up in it (``what``: a word, e.g.
+    ``textures``), named ``.NAME.tmp-WHAT-PID`` so that, like the output's own temporary, what a
+    killed run left there is removed by the next run for ``target`` (:func:`remove_stale`)."""
+    target = Path(target).resolve()
+    make_parent(target)
+    path = target.parent / f".{target.name}.tmp-{what}-{os.getpid()}"
+    shutil.rmtree(path, ignore_errors=True)
+    path.mkdir()
+    return path
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -156,4 +168,5 @@ def _unlink(paths: list[Path]) -> None:
             p.unlink()
 
 
-__all__ = ["atomic_files", "atomic_output_dir", "atomic_write_bytes", "make_parent", "output_path", "remove_stale"]
+__all__ = ["atomic_files", "atomic_output_dir", "atomic_write_bytes", "make_parent", "output_path", "remove_stale",
+           "scratch_dir"]

@@ -12,7 +12,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .atomic import atomic_output_dir
+from .atomic import atomic_output_dir, scratch_dir
 from .errors import RoadtwinError
 from .executors import SerialExecutor, make_executor
 from .looks.prefetch import TexturePrefetch, TexturesNow
@@ -127,7 +127,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             merger_impl = configured(merger_impl, apply_params(merger_impl.params, merger_params, f"merger {rules.merger}"))
         report = progress or (lambda *_: None)
         textures = stack.enter_context(TexturesNow(texture_writer, rules.seed) if texture_writer
-                                       else TexturePrefetch(rules.seed, side))
+                                       else TexturePrefetch(rules.seed, side, scratch_dir(outdir, "textures")))
         previewer = None
         if preview:
             previewer = _HereOrThere(pm, None if preview_here else side)

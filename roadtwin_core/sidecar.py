@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import multiprocessing
 import queue
+import signal
 import traceback
 from typing import Any, Callable
 
@@ -20,6 +21,9 @@ __all__ = ["Sidecar"]
 
 
 def _serve(jobs, results) -> None:
+    # Ctrl-C reaches the whole process group: the composer handles it and stops this process,
+    # which must not print a traceback of its own.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     while True:
         item = jobs.get()
         if item is None:

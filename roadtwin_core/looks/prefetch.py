@@ -1,14 +1,14 @@
 """Textures made while the town is placed and merged. Generating a texture set costs ~2.5 s of
 one core on a cold cache (a new user's first compose), while placement runs on one core and the
 other idles: the composer's helper process (:class:`~roadtwin_core.sidecar.Sidecar`, a fresh
-interpreter) writes the set into a private staging folder, and the composer moves it next to the
-stage when it gets there. Same seed, same bytes: the files are exactly what
+interpreter) writes the set into a staging folder beside the output
+(:func:`~roadtwin_core.atomic.scratch_dir`: a killed run's is removed by the next), and the
+composer moves it next to the stage when it gets there. Same seed, same bytes: the files are exactly what
 :func:`write_textures_cached` writes.
 """
 from __future__ import annotations
 
 import shutil
-import tempfile
 from pathlib import Path
 
 from .catalog import MaterialSpec
@@ -24,11 +24,12 @@ def _write_cached(folder: Path, seed: int) -> dict[str, MaterialSpec]:
 
 
 class TexturePrefetch:
-    """``with TexturePrefetch(seed, sidecar) as tex: ... specs = tex.collect(folder)``; the
-    sidecar's owner stops it (a compose that fails early does not wait for the set)."""
+    """``with TexturePrefetch(seed, sidecar, staging) as tex: ... specs = tex.collect(folder)``;
+    ``staging``: an empty folder of the caller's, removed on close. The sidecar's owner stops it
+    (a compose that fails early does not wait for the set)."""
 
-    def __init__(self, seed: int, sidecar) -> None:
-        self._stage = Path(tempfile.mkdtemp(prefix="roadtwin-textures-"))
+    def __init__(self, seed: int, sidecar, staging: Path) -> None:
+        self._stage = Path(staging)
         self._sidecar = sidecar
         self._ticket = sidecar.submit(_write_cached, self._stage / "textures", seed)
 
