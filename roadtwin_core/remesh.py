@@ -3,7 +3,7 @@
 Layout meshes (CARLA, OpenDRIVE strips) are long thin triangles; elevation restored only at
 their vertices would lose the road's roughness, and a cut into them would be ragged. The outline
 (non-convex, with holes) is kept exactly; each outline edge is split at points computed from its
-endpoints in canonical order (:func:`roadtwin_core.geometry.subdivide_edge`), so two segments
+endpoints in canonical order (:func:`roadtwin_core.geometry.subdivide_ring`), so two segments
 sharing an edge get bit-identical border vertices and stay watertight.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import triangle
 from shapely.geometry import Polygon
 
 from .errors import RoadtwinError
-from .geometry import polygon_loops, subdivide_edge
+from .geometry import polygon_loops, subdivide_ring
 from .model import RoadSegment
 
 __all__ = ["even_segment_mesh", "coarsen_defect"]
@@ -31,12 +31,7 @@ def even_segment_mesh(segment: RoadSegment, edge_m: float, rims: list[tuple[np.n
     """
     pts, segs, holes, offset = [], [], [], 0
     for k, loop in enumerate(polygon_loops(segment.polygon())):
-        ring = []
-        for i in range(len(loop)):
-            a, b = loop[i], loop[(i + 1) % len(loop)]
-            ring.append(a[None])
-            ring.append(subdivide_edge(a, b, edge_m))
-        ring_pts = np.concatenate(ring)
+        ring_pts = subdivide_ring(loop, edge_m)
         n = len(ring_pts)
         pts.append(ring_pts)
         segs.append(np.column_stack([np.arange(n), (np.arange(n) + 1) % n]) + offset)
