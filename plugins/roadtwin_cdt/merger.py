@@ -206,15 +206,18 @@ def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: 
     origin_region = part_region[origin_part]                             # sorted by region
     tin = ((tmax[None, :, 0] >= box[:, None, 0]) & (tmin[None, :, 0] <= box[:, None, 2])
            & (tmax[None, :, 1] >= box[:, None, 1]) & (tmin[None, :, 1] <= box[:, None, 3]))
-    pr, pt = np.nonzero(tin)                                             # (region, candidate triangle)
-    if not len(pr) or not len(origins):
+    cand = np.flatnonzero(tin.any(axis=0))                               # triangles near any region
+    if not len(cand) or not len(origins):
         return removed
-    n_orig = np.bincount(origin_region, minlength=len(regions))
-    first_orig = np.cumsum(n_orig) - n_orig
-    reps = n_orig[pr]
-    pair_tri = np.repeat(pt, reps)
-    within = np.arange(len(pair_tri)) - np.repeat(np.cumsum(reps) - reps, reps)
-    pair_origin = np.repeat(first_orig[pr], reps) + within
+    # (ray, triangle) pairs: a ray of region r against the triangles near r whose XY box (grown
+    # as vertical_ray_hits_pairs grows it) holds the ray; an STRtree finds them instead of
+    # listing every (ray, near triangle) pair. The same pairs reach the same arithmetic.
+    lo, hi = tmin[cand] - 1e-6, tmax[cand] + 1e-6
+    tree = shapely.STRtree(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))
+    pair_origin, pair_cand = tree.query(shapely.points(origins))
+    pair_tri = cand[pair_cand]
+    mine = tin[origin_region[pair_origin], pair_tri]
+    pair_origin, pair_tri = pair_origin[mine], pair_tri[mine]
     hits = vertical_ray_hits_pairs(origins, tri, pair_origin, pair_tri, top=1.0)
     removed[pair_tri[hits]] = True
     return removed
