@@ -110,10 +110,15 @@ def _coarsen(model, edge_m: float, tol: float):
     keep_loop = sorted({index[tuple(p)] for p in simple.tolist()} | {0})
     out = []
     gap = edge_m / 4.0
+    loop_xy = v[loop, :2]
     for a, b in zip(keep_loop, keep_loop[1:] + [keep_loop[0] + len(loop)]):
         out.append(a)
-        span = np.arange(a, b) % len(loop)
-        s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(v[loop[np.r_[span, b % len(loop)]], :2], axis=0), axis=1))]
+        if b - a < 2:
+            continue                         # adjacent kept vertices: nothing to put back
+        span = np.arange(a, b + 1) % len(loop)
+        step = np.linalg.norm(np.diff(loop_xy[span], axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(step)])
+        span = span[:-1]
         last = 0.0
         for j in range(1, len(span)):        # keep a vertex wherever skipping it would open a gap
             if s[j + 1] - last > gap:
