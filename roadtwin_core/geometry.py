@@ -74,6 +74,30 @@ def subdivide_edge(a: np.ndarray, b: np.ndarray, spacing: float) -> np.ndarray:
     return pts[::-1] if flip else pts
 
 
+def subdivide_ring(loop: np.ndarray, spacing: float) -> np.ndarray:
+    """A closed loop (K,2) with every edge subdivided: each vertex followed by
+    :func:`subdivide_edge` of the edge it starts, the same points bit for bit.
+
+    Why: an outline has thousands of edges; one vectorised pass replaces as many Python calls."""
+    a = np.asarray(loop, dtype=np.float64)
+    b = np.roll(a, -1, axis=0)
+    d = b - a
+    n = np.ceil(np.hypot(d[:, 0], d[:, 1]) / spacing).astype(np.int64)
+    m = np.where(n > 1, n - 1, 0)                       # inner points per edge
+    flip = (b[:, 0] < a[:, 0]) | ((b[:, 0] == a[:, 0]) & (b[:, 1] < a[:, 1]))
+    p = np.where(flip[:, None], b, a)
+    q = np.where(flip[:, None], a, b)
+    edge = np.repeat(np.arange(len(a)), m)
+    j = np.arange(len(edge)) - np.repeat(np.cumsum(m) - m, m)
+    k = np.where(flip[edge], m[edge] - j, j + 1)        # flipped edges list their points reversed
+    pts = p[edge] + (k / n[edge])[:, None] * (q - p)[edge]
+    start = np.arange(len(a)) + np.cumsum(m) - m
+    out = np.empty((len(a) + len(edge), 2))
+    out[start] = a
+    out[start[edge] + 1 + j] = pts
+    return out
+
+
 def vertical_ray_hits(origins_xy: np.ndarray, tri: np.ndarray, eps: float = 1e-12) -> np.ndarray:
     """Möller–Trumbore for vertical rays: which triangles each downward ray hits.
 
@@ -242,5 +266,5 @@ def loops_from_edges(edges: np.ndarray) -> list[np.ndarray]:
 
 
 __all__ = ["boundary_edges", "edge_face_counts", "mesh_outline_polygon", "polygon_loops",
-           "subdivide_edge", "vertical_ray_hits",
+           "subdivide_edge", "subdivide_ring", "vertical_ray_hits",
            "vertical_ray_hits_pairs", "first_vertical_hits", "MeshHeights", "triangle_min_angles", "loops_from_edges"]

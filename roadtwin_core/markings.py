@@ -29,7 +29,7 @@ from shapely.geometry import LineString, Polygon
 from shapely.ops import substring
 
 from .errors import RoadtwinError
-from .geometry import first_vertical_hits
+from .geometry import vertical_ray_hits_pairs
 from .model import LaneMarking, MergedSegment, Placement, RoadSegment
 
 LIFT_M = 0.005           # paint floats this far above the road (no z-fighting, no visible gap)
@@ -155,7 +155,7 @@ class RoadPatch:
         # One copy of each shared edge (its two triangles list it in opposite directions).
         flip = (edges[:, 0, 0] > edges[:, 1, 0]) | ((edges[:, 0, 0] == edges[:, 1, 0]) & (edges[:, 0, 1] > edges[:, 1, 1]))
         edges[flip] = edges[flip][:, ::-1]
-        edges = np.unique(edges.reshape(-1, 4), axis=0).reshape(-1, 2, 2)
+        edges = _unique_rows(edges.reshape(-1, 4)).reshape(-1, 2, 2)
         pieces = shapely.intersection(shapely.linestrings(edges), poly)
         segs = []
         for g in pieces[~shapely.is_empty(pieces)]:
@@ -169,7 +169,7 @@ class RoadPatch:
         """Road surface z under each point: the first triangle a vertical ray hits, then
         barycentric interpolation; a point no triangle covers (float noise on the outline) takes
         the nearest triangle vertex's height. Points are bucketed in cells; each cell's candidate
-        triangles come from one vectorised STRtree query."""
+        triangles come from one vectorised STRtree query, and all points are tested at once."""
         xy = np.asarray(xy, dtype=np.float64)
         z = np.full(len(xy), np.nan)
         if not len(xy):
@@ -179,23 +179,23 @@ class RoadPatch:
         cells = np.floor(xy / _CELL_M).astype(np.int64)
         _, inverse = np.unique(cells, axis=0, return_inverse=True)
         inverse = inverse.ravel()
-        order = np.argsort(inverse, kind="stable")
-        bounds = np.searchsorted(inverse[order], np.arange(inverse.max() + 2))
-        n_cells = len(bounds) - 1
+        n_cells = int(inverse.max()) + 1
         lo = np.full((n_cells, 2), np.inf)
         hi = np.full((n_cells, 2), -np.inf)
         np.minimum.at(lo, inverse, xy)
         np.maximum.at(hi, inverse, xy)
         boxes = shapely.box(lo[:, 0] - 1e-9, lo[:, 1] - 1e-9, hi[:, 0] + 1e-9, hi[:, 1] + 1e-9)
         cell_of, tri_of = self.tree.query(boxes)
-        o = np.lexsort((tri_of, cell_of))
-        cell_of, tri_of = cell_of[o], tri_of[o]
-        split = np.searchsorted(cell_of, np.arange(n_cells + 1))
-        for k in range(n_cells):
-            cand = tri_of[split[k]:split[k + 1]]
-            if len(cand):
-                idx = order[bounds[k]:bounds[k + 1]]
-                z[idx] = _heights_on(xy[idx], self.tris[cand])
+        # Every (point, candidate triangle of its cell) pair in one batch; the first hit in
+        # triangle order is the one a per-cell pass finds (candidates sorted by index there too).
+        n_cand = np.bincount(cell_of, minlength=n_cells)
+        first_cand = np.cumsum(n_cand) - n_cand
+        tri_sorted = tri_of[np.argsort(cell_of, kind="stable")]
+        reps = n_cand[inverse]
+        pair_p = np.repeat(np.arange(len(xy)), reps)
+        pair_t = tri_sorted[np.repeat(first_cand[inverse], reps) + np.arange(len(pair_p))
+                            - np.repeat(np.cumsum(reps) - reps, reps)]
+        z = _heights_on(xy, self.tris, pair_p, pair_t)
         missing = np.isnan(z)
         if missing.any():
             from scipy.spatial import cKDTree
@@ -206,8 +206,24 @@ class RoadPatch:
         return z
 
 
-def _heights_on(xy: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    first = first_vertical_hits(xy, tri)
+def _unique_rows(rows: np.ndarray) -> np.ndarray:
+    """``np.unique(rows, axis=0)`` for float rows from one lexsort (``np.unique`` on rows sorts a
+    structured view, several times slower). Rows with a zero go to ``np.unique``: it treats
+    -0.0 and 0.0 as equal and which one it keeps is its own affair."""
+    if not len(rows) or (rows == 0).any():
+        return np.unique(rows, axis=0)
+    s = rows[np.lexsort(rows.T[::-1])]
+    keep = np.r_[True, (s[1:] != s[:-1]).any(axis=1)]
+    return s[keep]
+
+
+def _heights_on(xy: np.ndarray, tri: np.ndarray, pair_p: np.ndarray, pair_t: np.ndarray) -> np.ndarray:
+    """z under each point from its candidate (point, triangle) pairs: the lowest-index triangle
+    a vertical ray hits, barycentric in it; NaN where none is hit."""
+    hit = vertical_ray_hits_pairs(xy, tri, pair_p, pair_t, top=max(float(tri[..., 2].max()), 0.0) + 1.0)
+    first = np.full(len(xy), len(tri), dtype=np.int64)
+    np.minimum.at(first, pair_p[hit], pair_t[hit])
+    first[first == len(tri)] = -1
     found = first >= 0
     z = np.full(len(xy), np.nan)
     t = tri[first[found]]

@@ -110,9 +110,19 @@ class DefectModel:
         """Highest point above the road (0 for a pure depression)."""
         return float(max(0.0, self.vertices[:, 2].max()))
 
+    def measures(self) -> tuple[float, float, float, float]:
+        """(depth_m, height_m, area_m2, volume_m3), computed once per vertex/face arrays: a
+        town's thousand placements share a few dozen models, and each placement reports them."""
+        memo = self.__dict__.get("_measures")
+        if memo is None or memo[0] is not self.vertices or memo[1] is not self.faces:
+            memo = (self.vertices, self.faces, (self.depth_m, self.height_m, self.area_m2, self.volume_m3))
+            self.__dict__["_measures"] = memo
+        return memo[2]
+
     def attributes(self) -> dict[str, Any]:
-        return {"type": self.defect_type, "depthM": self.depth_m, "heightM": self.height_m,
-                "areaM2": self.area_m2, "volumeM3": self.volume_m3, "source": self.source}
+        depth, height, area, volume = self.measures()
+        return {"type": self.defect_type, "depthM": depth, "heightM": height,
+                "areaM2": area, "volumeM3": volume, "source": self.source}
 
 
 @dataclass
@@ -192,8 +202,9 @@ class Placement:
     def attributes(self) -> dict[str, Any]:
         sx, sy, sz = self.scale
         m = self.model
-        return {"type": m.defect_type, "depthM": m.depth_m * sz, "heightM": m.height_m * sz,
-                "areaM2": m.area_m2 * sx * sy, "volumeM3": m.volume_m3 * sx * sy * sz,
+        depth, height, area, volume = m.measures()
+        return {"type": m.defect_type, "depthM": depth * sz, "heightM": height * sz,
+                "areaM2": area * sx * sy, "volumeM3": volume * sx * sy * sz,
                 "source": m.source, "model": m.name}
 
 

@@ -3,7 +3,7 @@
 Layout meshes (CARLA, OpenDRIVE strips) are long thin triangles; elevation restored only at
 their vertices would lose the road's roughness, and a cut into them would be ragged. The outline
 (non-convex, with holes) is kept exactly; each outline edge is split at points computed from its
-endpoints in canonical order (:func:`roadtwin_core.geometry.subdivide_edge`), so two segments
+endpoints in canonical order (:func:`roadtwin_core.geometry.subdivide_ring`), so two segments
 sharing an edge get bit-identical border vertices and stay watertight.
 """
 from __future__ import annotations
@@ -15,7 +15,7 @@ import triangle
 from shapely.geometry import Polygon
 
 from .errors import RoadtwinError
-from .geometry import polygon_loops, subdivide_edge
+from .geometry import polygon_loops, subdivide_ring
 from .model import RoadSegment
 
 __all__ = ["even_segment_mesh", "coarsen_defect"]
@@ -31,12 +31,7 @@ def even_segment_mesh(segment: RoadSegment, edge_m: float, rims: list[tuple[np.n
     """
     pts, segs, holes, offset = [], [], [], 0
     for k, loop in enumerate(polygon_loops(segment.polygon())):
-        ring = []
-        for i in range(len(loop)):
-            a, b = loop[i], loop[(i + 1) % len(loop)]
-            ring.append(a[None])
-            ring.append(subdivide_edge(a, b, edge_m))
-        ring_pts = np.concatenate(ring)
+        ring_pts = subdivide_ring(loop, edge_m)
         n = len(ring_pts)
         pts.append(ring_pts)
         segs.append(np.column_stack([np.arange(n), (np.arange(n) + 1) % n]) + offset)
@@ -115,10 +110,15 @@ def _coarsen(model, edge_m: float, tol: float):
     keep_loop = sorted({index[tuple(p)] for p in simple.tolist()} | {0})
     out = []
     gap = edge_m / 4.0
+    loop_xy = v[loop, :2]
     for a, b in zip(keep_loop, keep_loop[1:] + [keep_loop[0] + len(loop)]):
         out.append(a)
-        span = np.arange(a, b) % len(loop)
-        s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(v[loop[np.r_[span, b % len(loop)]], :2], axis=0), axis=1))]
+        if b - a < 2:
+            continue                         # adjacent kept vertices: nothing to put back
+        span = np.arange(a, b + 1) % len(loop)
+        step = np.linalg.norm(np.diff(loop_xy[span], axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(step)])
+        span = span[:-1]
         last = 0.0
         for j in range(1, len(span)):        # keep a vertex wherever skipping it would open a gap
             if s[j + 1] - last > gap:

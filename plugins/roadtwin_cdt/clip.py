@@ -138,20 +138,24 @@ def _planar_graph(pts: np.ndarray, z: np.ndarray, dedges: np.ndarray, bedges: np
         zrel = np.concatenate([zrel, np.array(new_z)])
 
     def chains(edges, split, canon_flip):
-        out = []
-        for e, (i, j) in enumerate(edges):
-            if e not in split:
-                out.append((i, j))
-                continue
-            mid = [k for _, k in sorted(split[e])]
+        """Each edge in order, a split one replaced by its chain (few are split: only those
+        are walked in Python)."""
+        count = np.ones(len(edges), dtype=np.int64)
+        for e, points in split.items():
+            count[e] += len(points)
+        start = np.cumsum(count) - count
+        out = np.empty((int(count.sum()), 2), dtype=np.int64)
+        whole = count == 1
+        out[start[whole]] = edges[whole]
+        for e, points in split.items():
+            mid = [k for _, k in sorted(points)]
             if canon_flip is not None and canon_flip[e]:
                 mid = mid[::-1]  # params were taken from the canonical end
-            ids = [i, *mid, j]
-            out.extend(zip(ids[:-1], ids[1:]))
+            ids = [int(edges[e, 0]), *mid, int(edges[e, 1])]
+            out[start[e]:start[e] + len(ids) - 1] = np.column_stack([ids[:-1], ids[1:]])
         return out
 
-    segs = chains(dedges, d_split, None) + chains(bedges, b_split, flip)
-    segs = np.asarray(segs, dtype=np.int64).reshape(-1, 2)
+    segs = np.concatenate([chains(dedges, d_split, None), chains(bedges, b_split, flip)])
     # Drop aliased (unused) points: Triangle crashes on duplicate input vertices even unused.
     # Defect vertices are all used by their own edges, so they keep their indices 0..nd-1.
     used = np.unique(segs)

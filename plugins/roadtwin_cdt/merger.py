@@ -15,8 +15,6 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 import triangle
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from roadtwin_core import (ComposeRules, MergedSegment, Placement, RoadSegment, RoadtwinError,
                            SurfaceModel, field)
@@ -208,15 +206,18 @@ def covered_triangles(v2: np.ndarray, faces: np.ndarray, regions: list, margin: 
     origin_region = part_region[origin_part]                             # sorted by region
     tin = ((tmax[None, :, 0] >= box[:, None, 0]) & (tmin[None, :, 0] <= box[:, None, 2])
            & (tmax[None, :, 1] >= box[:, None, 1]) & (tmin[None, :, 1] <= box[:, None, 3]))
-    pr, pt = np.nonzero(tin)                                             # (region, candidate triangle)
-    if not len(pr) or not len(origins):
+    cand = np.flatnonzero(tin.any(axis=0))                               # triangles near any region
+    if not len(cand) or not len(origins):
         return removed
-    n_orig = np.bincount(origin_region, minlength=len(regions))
-    first_orig = np.cumsum(n_orig) - n_orig
-    reps = n_orig[pr]
-    pair_tri = np.repeat(pt, reps)
-    within = np.arange(len(pair_tri)) - np.repeat(np.cumsum(reps) - reps, reps)
-    pair_origin = np.repeat(first_orig[pr], reps) + within
+    # (ray, triangle) pairs: a ray of region r against the triangles near r whose XY box (grown
+    # as vertical_ray_hits_pairs grows it) holds the ray; an STRtree finds them instead of
+    # listing every (ray, near triangle) pair. The same pairs reach the same arithmetic.
+    lo, hi = tmin[cand] - 1e-6, tmax[cand] + 1e-6
+    tree = shapely.STRtree(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))
+    pair_origin, pair_cand = tree.query(shapely.points(origins))
+    pair_tri = cand[pair_cand]
+    mine = tin[origin_region[pair_origin], pair_tri]
+    pair_origin, pair_tri = pair_origin[mine], pair_tri[mine]
     hits = vertical_ray_hits_pairs(origins, tri, pair_origin, pair_tri, top=1.0)
     removed[pair_tri[hits]] = True
     return removed
@@ -233,15 +234,19 @@ def _ring_input(all_xy, removed_faces, pieces, piece_ids, border_line=None):
     cand = np.unique(loop_edges)
     if len(cand) and border_line is not None:
         cand = cand[shapely.distance(border_line, shapely.points(all_xy[cand])) <= 1e-9]
+    island_seeds = _island_seeds(all_xy, removed_faces, rim)
     rim = _split_at_points(rim, all_xy, cand)
-    edges = np.concatenate([rim, loop_edges])
-    key = np.unique(np.sort(edges, axis=1), axis=0)
+    edges = np.sort(np.concatenate([rim, loop_edges]), axis=1)
+    # Unique sorted pairs through 1D keys (same order as np.unique(axis=0), several times faster).
+    n = int(edges.max()) + 1
+    key = np.unique(edges[:, 0] * n + edges[:, 1])
+    key = np.column_stack([key // n, key % n])
     key = key[key[:, 0] != key[:, 1]]
     ids = np.unique(key)
     local = np.full(int(ids.max()) + 1, -1, dtype=np.int64)
     local[ids] = np.arange(len(ids))
     holes = [pc.seed for pc in pieces] + [s for pc in pieces for s in pc.extra_seeds]
-    holes += _island_seeds(all_xy, removed_faces)
+    holes += island_seeds
     tri_in = {"vertices": all_xy[ids], "segments": local[key]}
     if holes:
         tri_in["holes"] = np.array(holes)
@@ -331,7 +336,8 @@ def _split_faces(faces: np.ndarray, chains: dict, xy: np.ndarray) -> np.ndarray:
 
 
 def _split_at_points(edges: np.ndarray, xy: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """Split rim edges at loop vertices lying on them (clipped defects meet the segment border)."""
+    """Split rim edges at loop vertices lying on them (clipped defects meet the segment border).
+    The edges come back in no particular order (unsplit ones first)."""
     if len(candidates) == 0 or len(edges) == 0:
         return edges
     a, b = xy[edges[:, 0]], xy[edges[:, 1]]
@@ -344,28 +350,29 @@ def _split_at_points(edges: np.ndarray, xy: np.ndarray, candidates: np.ndarray) 
     scale = np.sqrt(L2)[None]
     on = (dist <= 1e-9 * np.maximum(scale, 1.0)) & (t > 1e-12) & (t < 1 - 1e-12)
     on &= (candidates[:, None] != edges[None, :, 0]) & (candidates[:, None] != edges[None, :, 1])
-    if not on.any():
+    split = on.any(axis=0)
+    if not split.any():
         return edges
-    out = []
-    for e in range(len(edges)):
+    # The caller keys the rim by sorted pairs, so edge order is free: unsplit edges first.
+    out = [edges[~split]]
+    for e in np.flatnonzero(split):
         hit = np.flatnonzero(on[:, e])
-        if len(hit) == 0:
-            out.append(edges[e][None])
-            continue
         order = hit[np.argsort(t[hit, e])]
         chain = np.concatenate([[edges[e, 0]], candidates[order], [edges[e, 1]]])
         out.append(np.column_stack([chain[:-1], chain[1:]]))
     return np.concatenate(out)
 
 
-def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float, float]]:
+def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray, rim: np.ndarray | None = None
+                  ) -> list[tuple[float, float]]:
     """A point inside every kept-road island enclosed by the cut, so Triangle leaves it alone.
 
     The islands are the bounded faces of the rim's arrangement that the cut does not cover.
     (Holes of the cut's union are not enough: an island enclosed by two cut regions that touch
     only at vertices is a hole of neither, and the ring would be laid over it.)
     """
-    rim = boundary_edges(removed_faces)
+    if rim is None:
+        rim = boundary_edges(removed_faces)
     if not _may_enclose(removed_faces, rim):
         return []
     faces = shapely.get_parts(shapely.polygonize(shapely.linestrings(xy[rim])))
@@ -380,19 +387,33 @@ def _island_seeds(xy: np.ndarray, removed_faces: np.ndarray) -> list[tuple[float
 
 def _may_enclose(faces: np.ndarray, rim: np.ndarray) -> bool:
     """False when every connected cut region is a disk (one rim loop each, no pinched vertex):
-    then nothing is enclosed and the costly island search can be skipped."""
-    used, local = np.unique(faces, return_inverse=True)      # the cut's vertices only
-    faces = local.reshape(-1, 3)
-    rim = np.searchsorted(used, rim)
-    n = len(used)
-    if np.bincount(rim[:, 0], minlength=n).max(initial=0) > 1:
+    then nothing is enclosed and the costly island search can be skipped.
+
+    Without a pinched rim vertex every region is a planar surface and its rim loops are disjoint
+    cycles, so Euler's V - E + F = sum over regions of (2 - loops) = 2 C - L, and all regions are
+    disks (C == L) exactly when V - E + F == L. Counting beats two graph labellings (scipy's
+    overhead dominated on a few hundred triangles)."""
+    if not len(rim):
+        return False
+    if np.bincount(rim[:, 0]).max() > 1:
         return True  # a pinched rim vertex: loops are ambiguous, search properly
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
-    n_regions = connected_components(graph, directed=False)[0]
-    loops = coo_matrix((np.ones(len(rim)), (rim[:, 0], rim[:, 1])), shape=(n, n))
-    n_loops = connected_components(loops, directed=False)[1][np.unique(rim)]
-    return len(np.unique(n_loops)) != n_regions
+    n_vertices = len(np.unique(faces))
+    n_edges = (3 * len(faces) + len(rim)) // 2     # inner edges have two faces, rim edges one
+    euler = n_vertices - n_edges + len(faces)
+    return euler != _cycle_count(rim)
+
+
+def _cycle_count(edges: np.ndarray) -> int:
+    """Number of cycles of directed edges where every vertex has one successor (pointer
+    jumping: each vertex learns the smallest id on its cycle in log2(len) rounds)."""
+    nxt = np.arange(int(edges.max()) + 1)
+    nxt[edges[:, 0]] = edges[:, 1]
+    label = np.arange(len(nxt))
+    for _ in range(max(int(len(edges)).bit_length(), 1)):
+        label = np.minimum(label, label[nxt])
+        nxt = nxt[nxt]
+    v = edges[:, 0]
+    return int((label[v] == v).sum())
 
 
 __all__ = ["CDTMerger", "CDTParams", "covered_triangles", "ring_cdt", "ring_cdt_split"]
