@@ -80,3 +80,25 @@ def test_file_outputs_share_the_crash_cleanup_and_leave_nothing_on_error(tmp_pat
         raise RuntimeError("writer failed")
     assert out.read_bytes() == b"whole" and not (tmp_path / "road.mtl").exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["road.crg", live.name])
+
+
+def test_a_killed_composes_texture_staging_is_removed_by_the_next_run(tmp_path):
+    """The composer's helper stages textures beside the output (scratch_dir): a kill -9 leaves
+    that folder too, and the next run for the same output removes it, not a live run's."""
+    hold = ("import sys, time\nfrom roadtwin_core.atomic import scratch_dir\n"
+            "print(scratch_dir(sys.argv[1], 'textures'), flush=True)\ntime.sleep(60)\n")
+    out = tmp_path / "town"
+    procs = [subprocess.Popen([sys.executable, "-c", hold, str(out)], stdout=subprocess.PIPE, text=True)
+             for _ in range(2)]
+    killed, live = procs
+    try:
+        stale, running = (Path(p.stdout.readline().strip()) for p in procs)
+        assert stale.name == f".town.tmp-textures-{killed.pid}" and stale.is_dir()
+        killed.send_signal(signal.SIGKILL)
+        killed.wait()
+        with atomic_output_dir(out) as t:
+            (t / "result.txt").write_text("output")
+        assert not stale.exists() and running.is_dir()
+    finally:
+        live.kill()
+        live.wait()
