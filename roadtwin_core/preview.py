@@ -49,13 +49,17 @@ def choose_spot(lanes, defect_xy: np.ndarray, step_m: float = 1.0) -> PreviewSpo
     one whose defects are nearest mid-window on average, then the first (deterministic); None
     without lanes."""
     best, best_score = None, -np.inf
-    pts = np.asarray(defect_xy, dtype=np.float64).reshape(-1, 2)
+    all_pts = np.asarray(defect_xy, dtype=np.float64).reshape(-1, 2)
+    reach = math.hypot(AHEAD_M[1], LATERAL_M)        # no defect farther than this from its spot counts
     for lane in lanes:
         if lane.length <= 0:
             continue
         s = np.arange(0.0, lane.length + 1e-9, step_m)
         xy = lane.at(s)
         hd = lane.heading(s)
+        # only the defects near this lane's box (same counts, a fraction of the pairs)
+        lo, hi = xy.min(axis=0) - reach, xy.max(axis=0) + reach
+        pts = all_pts[((all_pts >= lo) & (all_pts <= hi)).all(axis=1)]
         if len(pts):
             d = pts[None, :, :] - xy[:, None, :]
             c, sn = np.cos(hd)[:, None], np.sin(hd)[:, None]
@@ -265,6 +269,22 @@ def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: i
     sheet.save(path, format="PNG", compress_level=6)
     return {"path": Path(path), "spot": spot, "camera": cam if view is not None else None, "note": note or None,
             "timings_s": {"render": t_render - t0, "map": t_map - t_render, "total": time.perf_counter() - t0}}
+
+
+def warm_renderer(pm=None) -> None:
+    """Load the preview's renderer ahead of its frame (warp's import, its kernels compiled on a
+    first run: ~0.5 s and ~3 s of CPU that do not depend on the town): the composer calls this
+    in a thread when it starts, so :func:`write_preview` does not wait for them. Does nothing
+    without a usable renderer (the preview then says why)."""
+    from .plugins import get_plugin_manager
+
+    try:
+        renderer = (pm or get_plugin_manager()).get("renderers", "warp")
+        warm = getattr(renderer, "warm", None)
+        if warm is not None:
+            warm()
+    except (RoadtwinError, ImportError):
+        pass
 
 
 MAP_SIZE = (640, RENDER_SIZE[1])    # the map fits this box (pixels), beside the 800 x 480 view

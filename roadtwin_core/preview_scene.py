@@ -32,6 +32,13 @@ class PreviewTown:
     placements: list[Placement]
     markings: list = field(default_factory=list)
     looks_layer: Path | None = None
+    # material name -> parsed TownMaterial (what ``_stage_materials`` reads from the looks
+    # layer): a caller that holds them renders before ``layers/looks.usda`` is on disk
+    materials: dict | None = None
+
+    def stage_materials(self) -> dict:
+        """Material name -> parsed ``TownMaterial``: ``materials`` when given, else the looks layer's."""
+        return self.materials if self.materials is not None else _stage_materials(self.looks_layer)
 
     def lanes(self):
         from .render import Lane
@@ -68,7 +75,7 @@ class PreviewTown:
         dtypes = sorted({p.model.defect_type for p in self.placements})
         classes = class_names(dtypes, [s.kind for s in self.layout.segments])
         cid = {n: i for i, n in enumerate(classes)}
-        stage_mats = _stage_materials(self.looks_layer) if looks else {}
+        stage_mats = self.stage_materials() if looks else {}
         materials = [DEFAULT_MATERIAL]
         mat_slot = {}                                  # material name -> index in ``materials``
         p_class = np.array([cid[p.model.defect_type] for p in self.placements] or [0], np.int32)
@@ -171,45 +178,68 @@ def preview_material(mat, max_texels: int = PREVIEW_TEXELS):
 
 
 def _decode_reduced(tex, max_texels: int) -> np.ndarray:
-    """``decode_texture(tex)`` box-reduced by 2 until its larger side is <= ``max_texels``."""
-    from PIL import Image
+    """``decode_texture(tex)`` box-reduced by 2 until its larger side is <= ``max_texels``.
+    8-bit files go through OpenCV (its PNG decode is faster than Pillow's, and it releases the
+    GIL); values are decoded through a 256-entry table and box-reduced by ``cv2.resize``
+    (INTER_AREA at a power-of-two factor is the mean of each 2^k x 2^k block, as the repeated
+    2 x 2 means of the renderer's pyramid)."""
+    import cv2
 
     from .errors import RoadtwinError
     from .usd.looks_reader import decode_texture, srgb_to_linear
 
     if not tex.path:
         return decode_texture(tex)
-    channels = list(tex.channels)
-    try:
-        with Image.open(tex.path) as im:
-            if im.mode not in ("L", "LA", "RGB", "RGBA", "P"):
-                img = None                                   # 16-bit and others: the general path
-            elif (im.mode == "RGB" and max(channels) < 3) or (im.mode == "RGBA" and max(channels) < 4):
-                img = np.asarray(im)[..., channels]
-            else:
-                img = np.asarray(im.convert("RGBA"))[..., channels]
-    except Exception as exc:
-        raise RoadtwinError(f"{tex.path}: not a readable image ({exc})") from None
+    img = cv2.imread(str(tex.path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        out = decode_texture(tex)
+        raise RoadtwinError(f"{tex.path}: not a readable image")
+    if img.dtype != np.uint8 or (img.ndim == 3 and img.shape[2] not in (3, 4)):
+        out = decode_texture(tex)                          # 16-bit and others: the general path
     else:
+        # OpenCV's channel order (grey, BGR, BGRA) as the RGBA the texture's channels index
+        planes = ([img] * 3 + [None]) if img.ndim == 2 else [img[..., 2], img[..., 1], img[..., 0],
+                                                              img[..., 3] if img.shape[2] == 4 else None]
         unit = np.arange(256, dtype=np.float32) / 255.0
-        srgb = [tex.srgb and ch < 3 for ch in channels]
-        if not any(srgb):
-            # linear channels: reduce the integers first (the mean commutes with scale and bias)
-            acc = img.astype(np.float32)
-            while max(acc.shape[:2]) > max_texels and min(acc.shape[:2]) % 2 == 0:
-                acc = 0.5 * (acc[0::2] + acc[1::2])
-                acc = 0.5 * (acc[:, 0::2] + acc[:, 1::2])
-            out = acc / np.float32(255.0)
-        else:
-            lut = np.stack([srgb_to_linear(unit) if s else unit for s in srgb], axis=1)   # (256, C)
-            out = lut[img, np.arange(len(channels))]
-        out = (out * np.asarray(tex.scale, np.float32) + np.asarray(tex.bias, np.float32)).astype(np.float32)
-    while max(out.shape[:2]) > max_texels and min(out.shape[:2]) % 2 == 0:
-        out = 0.5 * (out[0::2] + out[1::2])                  # as the renderer's mip_levels: rows, then columns
-        out = 0.5 * (out[:, 0::2] + out[:, 1::2])
+        lin = srgb_to_linear(unit)
+        out = np.empty(img.shape[:2] + (len(tex.channels),), np.float32)
+        for k, ch in enumerate(tex.channels):
+            scale, bias = np.float32(tex.scale[k]), np.float32(tex.bias[k])
+            lut = (lin if tex.srgb and ch < 3 else unit) * scale + bias
+            if planes[ch] is None:                           # no alpha in the file: opaque
+                out[..., k] = lut[255]
+            else:
+                out[..., k] = np.take(lut, planes[ch])
+    h, w = out.shape[:2]
+    k = 1
+    while max(h, w) // k > max_texels and (h // k) % 2 == 0 and (w // k) % 2 == 0:
+        k *= 2
+    if k > 1:
+        small = cv2.resize(out, (w // k, h // k), interpolation=cv2.INTER_AREA)
+        out = small.reshape(h // k, w // k, out.shape[2])
     return np.ascontiguousarray(out, dtype=np.float32)
+
+
+def materials_from_specs(specs: dict, layers_dir: Path, root: str) -> dict:
+    """Material name -> parsed ``TownMaterial`` of the looks layer that ``write_looks`` will
+    write into ``layers_dir`` for ``specs`` (``MaterialSpec`` by name), without waiting for it:
+    the same ``define_material`` network, parsed by the same reader, on an in-memory layer
+    anchored in ``layers_dir`` (so its ``../textures`` paths resolve; the textures must be there)."""
+    from pxr import Sdf, Usd, UsdShade
+
+    from .usd.looks import define_material
+    from .usd.looks_reader import parse_material
+
+    layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(Path(layers_dir) / "_preview_looks.usda"))
+    try:
+        stage = Usd.Stage.Open(layer)
+        out = {}
+        for name in sorted(specs):
+            mat = define_material(stage, root, specs[name])
+            out.setdefault(mat.GetPrim().GetName(), parse_material(UsdShade.Material(mat.GetPrim())))
+        del stage
+    finally:
+        layer.Clear()
+    return out
 
 
 def _stage_materials(looks_layer: Path | None) -> dict:
@@ -228,4 +258,4 @@ def _stage_materials(looks_layer: Path | None) -> dict:
     return out
 
 
-__all__ = ["PreviewTown", "VIEW_RANGE_M", "preview_material"]
+__all__ = ["PreviewTown", "VIEW_RANGE_M", "materials_from_specs", "preview_material"]

@@ -26,6 +26,7 @@ World: Z up, metres. Nothing here knows about USD, files or the plugin manager.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,29 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 WRAP_MODES = {"repeat": 0, "clamp": 1, "mirror": 2}
+_LOADED: set = set()     # devices this module's kernels are loaded on
+
+
+def load_kernels(device=None) -> None:
+    """Compile this module's kernels for ``device`` now, or load them from warp's kernel cache.
+
+    On a CPU without warp's precompiled headers: warp builds them anew in every process (they are
+    not cached) and they only pay off from a process's second compiled module, so a first run
+    (empty kernel cache) of the preview or a dataset compiles this one module ~0.7 s faster (3.2
+    instead of 4.0 s on 2 cores). LLVM's options stay warp's defaults: with LLVM's own inlining
+    thresholds it compiles in 2.3 s but shades 60 % slower (bench: 184 -> 294 ms a 800 x 480 frame).
+    Safe to call from a thread started early, to compile while the caller does other work."""
+    device = wp.get_device(device)
+    if str(device) in _LOADED:
+        return
+    saved = wp.config.use_precompiled_headers
+    if device.is_cpu:
+        wp.config.use_precompiled_headers = False
+    try:
+        wp.load_module(module=sys.modules[__name__], device=device)
+    finally:
+        wp.config.use_precompiled_headers = saved
+    _LOADED.add(str(device))
 
 
 @wp.struct
@@ -640,6 +664,7 @@ class RaycastScene:
     def __init__(self, vertices, faces, face_class, face_instance, face_material=None, face_uv=None,
                  materials=None, device=None, background_class: int = 0):
         self.device = wp.get_device(device)
+        load_kernels(self.device)
         v = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
         f = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
         if len(f) == 0:
