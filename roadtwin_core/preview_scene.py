@@ -35,6 +35,7 @@ class PreviewTown:
     # material name -> parsed TownMaterial (what ``_stage_materials`` reads from the looks
     # layer): a caller that holds them renders before ``layers/looks.usda`` is on disk
     materials: dict | None = None
+    _geometry: object = field(default=None, init=False, repr=False, compare=False)
 
     def stage_materials(self) -> dict:
         """Material name -> parsed ``TownMaterial``: ``materials`` when given, else the looks layer's."""
@@ -69,78 +70,76 @@ class PreviewTown:
                  "class_id": classes.index(p.model.defect_type),
                  "attributes": {"poseXYYaw": [p.x, p.y, p.yaw]}} for k, p in enumerate(self.placements, 1)]
 
-    def _mesh(self, keep=None, looks: bool = False):
-        from .render.scene import DEFAULT_MATERIAL, RenderMesh, class_names, render_material
+    def _town(self) -> "_Geometry":
+        """The whole town concatenated once (then kept): what the map draws and the view
+        selects from, so neither does per-part Python work beyond the parts it keeps."""
+        if getattr(self, "_geometry", None) is None:
+            verts, faces, fpart, fplace, labels, mats, road_sts, vstart = [], [], [], [], [], [], [], [0]
+            for v, f, label, placement, mat, road_st, _defect_st in self._parts():
+                if not len(f):
+                    continue
+                fpart.append(np.full(len(f), len(labels), np.int32))
+                faces.append(np.asarray(f, np.int64) + vstart[-1])
+                verts.append(np.asarray(v, np.float64))
+                fplace.append(np.asarray(placement, np.int64))
+                labels.append(label)
+                mats.append(mat)
+                road_sts.append(road_st)
+                vstart.append(vstart[-1] + len(v))
+            v = np.concatenate(verts)
+            starts = np.asarray(vstart, np.int64)
+            self._geometry = _Geometry(v, np.concatenate(faces), np.concatenate(fpart), np.concatenate(fplace),
+                                       labels, mats, road_sts, starts,
+                                       np.minimum.reduceat(v[:, :2], starts[:-1], axis=0),
+                                       np.maximum.reduceat(v[:, :2], starts[:-1], axis=0))
+        return self._geometry
+
+    def _labels(self, g):
+        """(classes, defect types, class id per face)."""
+        from .render.scene import class_names
 
         dtypes = sorted({p.model.defect_type for p in self.placements})
         classes = class_names(dtypes, [s.kind for s in self.layout.segments])
         cid = {n: i for i, n in enumerate(classes)}
-        stage_mats = self.stage_materials() if looks else {}
-        materials = [DEFAULT_MATERIAL]
-        mat_slot = {}                                  # material name -> index in ``materials``
         p_class = np.array([cid[p.model.defect_type] for p in self.placements] or [0], np.int32)
-        p_mat = [defect_material(p.model.defect_type) for p in self.placements]
-
-        def slot(name: str) -> int:
-            if name not in stage_mats:
-                return 0
-            if name not in mat_slot:
-                mat_slot[name] = len(materials)
-                materials.append(preview_material(stage_mats[name]) if looks else render_material(stage_mats[name]))
-            return mat_slot[name]
-
-        verts, faces, fcls, finst, fmat, fuv, offset = [], [], [], [], [], [], 0
-        for v, f, label, placement, mat, road_st, defect_st in self._parts():
-            sel = keep(v, f) if keep is not None else np.ones(len(f), bool)
-            if not sel.any():
-                continue
-            f, placement = f[sel], placement[sel]
-            defect = placement >= 0
-            cls = np.where(defect, p_class[np.maximum(placement, 0)], cid[label]).astype(np.int32)
-            verts.append(v)
-            faces.append(f + offset)
-            offset += len(v)
-            fcls.append(cls)
-            finst.append((placement + 1).astype(np.int32))
-            if looks:
-                # decode only the materials in view (a 1024 px material is ~30 MB as float images)
-                used = np.unique(placement[defect])
-                lut = np.zeros(max(len(p_mat), 1), np.int32)
-                lut[used] = [slot(p_mat[i]) for i in used]
-                road_slot = slot(mat) if (~defect).any() else 0
-                fmat.append(np.where(defect, lut[np.maximum(placement, 0)], road_slot).astype(np.int32))
-                uv = np.asarray(road_st(v), np.float32)[f]
-                if defect.any():
-                    uv[defect] = np.asarray(defect_st(v), np.float32)[f[defect]]
-                fuv.append(uv)
-            else:
-                fmat.append(np.zeros(len(f), np.int32))
-        uv = np.concatenate(fuv) if looks else np.zeros((sum(map(len, faces)), 3, 2), np.float32)
-        return RenderMesh(np.concatenate(verts), np.concatenate(faces), np.concatenate(fcls), np.concatenate(finst),
-                          np.concatenate(fmat), uv, classes, materials, self._instances(classes),
-                          [c for c in classes if c in dtypes], str(self.layout.source))
+        part_class = np.array([cid[label] for label in g.labels], np.int32)
+        return classes, dtypes, (p_class, part_class)
 
     def map_mesh(self):
         """The whole town, labelled (no looks: the map colours by elevation and label)."""
-        return self._mesh()
+        from .render.scene import DEFAULT_MATERIAL, RenderMesh
+
+        g = self._town()
+        classes, dtypes, (p_class, part_class) = self._labels(g)
+        defect = g.place >= 0
+        cls = np.where(defect, p_class[np.maximum(g.place, 0)], part_class[g.part])
+        m = len(g.faces)
+        return RenderMesh(g.vertices, g.faces, cls, (g.place + 1).astype(np.int32), np.zeros(m, np.int32),
+                          np.zeros((m, 3, 2), np.float32), classes, [DEFAULT_MATERIAL], self._instances(classes),
+                          [c for c in classes if c in dtypes], str(self.layout.source))
 
     def view_mesh(self, spot, range_m: float = VIEW_RANGE_M, half_angle: float | None = None):
         """The road within ``range_m`` of the camera, with the stage's looks: only faces that
         may lie inside the horizontal wedge of ``half_angle`` (rad) about the heading (None:
         everything not more than ``VIEW_BEHIND_M`` behind the camera). A face is kept when its
         bounding circle (centroid, farthest corner) meets the region, so a large road triangle
-        whose corners all lie outside the wedge is still drawn."""
-        c, s = np.cos(spot.heading), np.sin(spot.heading)
-        wedge = half_angle is not None and half_angle < 0.5 * np.pi
+        whose corners all lie outside the wedge is still drawn. Parts (segments, markings)
+        with any face kept bring all their vertices, in the town's order."""
+        from .render.scene import DEFAULT_MATERIAL, RenderMesh
+        from .usd.stage import planar_st
 
-        def keep(v, f):
-            lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)     # whole segment out of range: skip
-            if (np.maximum(lo - spot.xy, 0) ** 2).sum() + (np.maximum(spot.xy - hi, 0) ** 2).sum() >= range_m ** 2:
-                return np.zeros(len(f), bool)
-            d = v[:, :2] - spot.xy
-            if not wedge:
-                ok = (np.hypot(d[:, 0], d[:, 1]) < range_m) & (d[:, 0] * c + d[:, 1] * s > -VIEW_BEHIND_M)
-                return ok[f[:, 0]] | ok[f[:, 1]] | ok[f[:, 2]]
+        g = self._town()
+        c, s = np.cos(spot.heading), np.sin(spot.heading)
+        xy = np.asarray(spot.xy, np.float64)
+        # parts wholly out of range are skipped by their boxes
+        gap = (np.maximum(g.lo - xy, 0) ** 2).sum(axis=1) + (np.maximum(xy - g.hi, 0) ** 2).sum(axis=1)
+        idx = np.flatnonzero((gap < range_m ** 2)[g.part])
+        f = g.faces[idx]
+        d = g.vertices[:, :2] - xy
+        if half_angle is None or half_angle >= 0.5 * np.pi:
+            ok = (np.hypot(d[:, 0], d[:, 1]) < range_m) & (d[:, 0] * c + d[:, 1] * s > -VIEW_BEHIND_M)
+            sel = ok[f[:, 0]] | ok[f[:, 1]] | ok[f[:, 2]]
+        else:
             ca, cb, cc = d[f[:, 0]], d[f[:, 1]], d[f[:, 2]]
             cen = (ca + cb + cc) / 3.0
             r = np.sqrt(np.maximum(np.maximum(((ca - cen) ** 2).sum(1), ((cb - cen) ** 2).sum(1)),
@@ -151,9 +150,59 @@ class PreviewTown:
             off = np.arctan2(side, ahead) - half_angle               # angle outside the wedge
             to_wedge = np.where(off <= 0, 0.0, np.where(off < 0.5 * np.pi, dist * np.sin(np.minimum(off, 0.5 * np.pi)),
                                                          dist))
-            return (to_wedge <= r + VIEW_MARGIN_M) & (dist - r < range_m)
+            sel = (to_wedge <= r + VIEW_MARGIN_M) & (dist - r < range_m)
+        kept = idx[sel]
+        part = g.part[kept]
+        place = g.place[kept]
+        parts = np.unique(part)                                      # ascending: the town's order
+        count = g.vstart[parts + 1] - g.vstart[parts]
+        new_start = np.concatenate([[0], np.cumsum(count)])
+        shift = np.zeros(len(g.labels), np.int64)
+        shift[parts] = g.vstart[parts] - new_start[:-1]
+        faces = g.faces[kept] - shift[part][:, None]
+        vidx = np.repeat(g.vstart[parts] - new_start[:-1], count) + np.arange(new_start[-1])
+        vertices = g.vertices[vidx]
+        classes, dtypes, (p_class, part_class) = self._labels(g)
+        defect = place >= 0
+        cls = np.where(defect, p_class[np.maximum(place, 0)], part_class[part])
+        # st: each part's own road st (lane-aligned on driving segments), world-planar on defects
+        road_st = np.concatenate([np.asarray(g.road_st[k](g.vertices[g.vstart[k]:g.vstart[k + 1]]), np.float32)
+                                  for k in parts]) if len(parts) else np.zeros((0, 2), np.float32)
+        uv = road_st[faces]
+        if defect.any():
+            uv[defect] = np.asarray(planar_st(vertices), np.float32)[faces[defect]]
+        # materials: only those of the faces kept, decoded once each (a 1024 px material is ~30 MB)
+        stage_mats = self.stage_materials()
+        p_mat = [defect_material(p.model.defect_type) for p in self.placements]
+        names = sorted({p_mat[i] for i in np.unique(place[defect])} | {g.mats[k] for k in np.unique(part[~defect])})
+        materials, slot = [DEFAULT_MATERIAL], {}
+        for name in names:
+            if name in stage_mats:
+                slot[name] = len(materials)
+                materials.append(preview_material(stage_mats[name]))
+        part_slot = np.array([slot.get(m, 0) for m in g.mats], np.int32)
+        place_slot = np.array([slot.get(m, 0) for m in p_mat] or [0], np.int32)
+        fmat = np.where(defect, place_slot[np.maximum(place, 0)], part_slot[part])
+        return RenderMesh(vertices, faces, cls, (place + 1).astype(np.int32), fmat, uv, classes, materials,
+                          self._instances(classes), [c for c in classes if c in dtypes], str(self.layout.source))
 
-        return self._mesh(keep, looks=True)
+
+@dataclass
+class _Geometry:
+    """The town's parts concatenated: per face its part and placement (-1: road); per part its
+    label, road material, road st function, first vertex (``vstart``, one more at the end) and
+    xy bounding box."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    part: np.ndarray
+    place: np.ndarray
+    labels: list
+    mats: list
+    road_st: list
+    vstart: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
 
 
 PREVIEW_TEXELS = 512     # textures decoded at the MIP level no larger than this (one small frame)
