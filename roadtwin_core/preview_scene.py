@@ -5,9 +5,14 @@ building a ray-casting scene over its 1.8 M triangles took ~6-20 s; the preview 
 (geometry and labels only) and one view of the road around one camera. Geometry, labels and
 st come from the composer's in-memory meshes, through the same functions the writer uses
 (``segment_st`` / ``planar_st``, the catalog's binding rules); the materials themselves are
-parsed from the stage's own looks layer (``layers/looks.usda``, a small file), so the view
-shows the stage's materials. tests/test_preview_scene.py checks the result against
-``build_render_mesh(load_town(stage, looks=True))``.
+parsed from the stage's own looks layer (``layers/looks.usda``, a small file), or given in
+memory (``materials``, e.g. :func:`materials_from_specs`: the same network parsed by the same
+reader, before the layer is written), so the view shows the stage's materials.
+tests/test_preview_scene.py checks the result against ``build_render_mesh(load_town(stage, looks=True))``.
+
+Cost (Town01, 1,000 defects, 2 cores): the parts are concatenated once (~0.05 s) and the map
+and the view are selected from that with whole-array culling; decoding the ~10 materials in
+view (PNG, 28 files) is the largest piece left (~0.2 s).
 """
 from __future__ import annotations
 
