@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,6 +38,7 @@ wp.set_module_options({"enable_backward": False})
 
 WRAP_MODES = {"repeat": 0, "clamp": 1, "mirror": 2}
 _LOADED: set = set()     # devices this module's kernels are loaded on
+_LOAD_LOCK = threading.Lock()    # a warm-up thread and the first frame may ask at once
 
 
 def load_kernels(device=None) -> None:
@@ -49,16 +51,17 @@ def load_kernels(device=None) -> None:
     thresholds it compiles in 2.3 s but shades 60 % slower (bench: 184 -> 294 ms a 800 x 480 frame).
     Safe to call from a thread started early, to compile while the caller does other work."""
     device = wp.get_device(device)
-    if str(device) in _LOADED:
-        return
-    saved = wp.config.use_precompiled_headers
-    if device.is_cpu:
-        wp.config.use_precompiled_headers = False
-    try:
-        wp.load_module(module=sys.modules[__name__], device=device)
-    finally:
-        wp.config.use_precompiled_headers = saved
-    _LOADED.add(str(device))
+    with _LOAD_LOCK:
+        if str(device) in _LOADED:
+            return
+        saved = wp.config.use_precompiled_headers
+        if device.is_cpu:
+            wp.config.use_precompiled_headers = False
+        try:
+            wp.load_module(module=sys.modules[__name__], device=device)
+        finally:
+            wp.config.use_precompiled_headers = saved
+        _LOADED.add(str(device))
 
 
 @wp.struct
