@@ -13,8 +13,7 @@ triangles, labels and st through the writer's own functions, the materials parse
 stage's looks layer or handed over in memory (textures at the MIP level the frame needs), and only the road the camera
 can see (its horizontal wedge, within 150 m) in the ray-casting scene (reading Town01 back cost
 ~6 s). Without a usable renderer (warp not installed, plugin not loaded) the map stands alone
-with a note saying why. :func:`warm_renderer` (in a thread, early) takes warp's import and, on
-a first run, its kernel compile off the preview's own time.
+with a note saying why.
 """
 from __future__ import annotations
 
@@ -270,22 +269,6 @@ def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: i
     sheet.save(path, format="PNG", compress_level=3)   # lossless; 6 took 2.3x as long for 11 % less
     return {"path": Path(path), "spot": spot, "camera": cam if view is not None else None, "note": note or None,
             "timings_s": {"render": t_render - t0, "map": t_map - t_render, "total": time.perf_counter() - t0}}
-
-
-def warm_renderer(pm=None) -> None:
-    """Load the preview's renderer ahead of its frame (warp's import, its kernels compiled on a
-    first run: ~0.5 s and ~3 s of CPU that do not depend on the town): the composer calls this
-    in a thread when it starts, so :func:`write_preview` does not wait for them. Does nothing
-    without a usable renderer (the preview then says why)."""
-    from .plugins import get_plugin_manager
-
-    try:
-        renderer = (pm or get_plugin_manager()).get("renderers", "warp")
-        warm = getattr(renderer, "warm", None)
-        if warm is not None:
-            warm()
-    except (RoadtwinError, ImportError):
-        pass
 
 
 MAP_SIZE = (640, RENDER_SIZE[1])    # the map fits this box (pixels), beside the 800 x 480 view

@@ -51,12 +51,6 @@ class WarpRenderer:
                    "with sun, shadows, fog, wet road, dusk")
     Params = RenderParams
 
-    def warm(self, device: str = "cpu") -> None:
-        """Import warp and compile (first run) or load (kernel cache) the kernels for ``device``
-        now: a caller runs this in a thread while it does other work (the composer, before its
-        preview), so the first frame waits for neither (~0.5 s import, ~3 s compile)."""
-        _rc().load_kernels(device)
-
     # ------------------------------------------------------------------ scene
     def prepare(self, scene, params: RenderParams | None = None) -> PreparedScene:
         if isinstance(scene, PreparedScene):
