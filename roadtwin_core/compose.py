@@ -103,16 +103,20 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             texture_writer: Callable[[Path, int], dict] | None = None) -> ComposeResult:
     """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's.
     ``texture_writer``: ``writer(folder, seed) -> specs`` to write the textures instead of the cached
-    set, which is otherwise made in a helper process while the town is placed and merged.
+    set, which is otherwise made (or copied from the cache) in a helper process while the town is
+    placed and merged.
 
-    The preview runs in that helper process too (:mod:`~roadtwin_core.preview_job`), on the second
-    core while the stage is written and validated, unless a plugin manager ``pm`` is given: that
-    one cannot travel to another process, so the preview then runs here, at the end."""
+    The preview has a helper process of its own (:mod:`~roadtwin_core.preview_job`): it loads the
+    renderer from the start (on a machine's first run it compiles the renderer's kernels, beside
+    the textures' helper instead of after it), and draws on the second core while the stage is
+    written and validated. A plugin manager ``pm`` of the caller's cannot travel to another
+    process: the preview then runs here, at the end."""
     t0 = time.perf_counter()
     preview_here = pm is not None
     with contextlib.ExitStack() as stack:
-        # Started first: the helper's interpreter boots while the layout is read.
-        side = stack.enter_context(Sidecar()) if (not texture_writer or (preview and not preview_here)) else None
+        # Started first: the helpers' interpreters boot while the layout is read.
+        texture_side = stack.enter_context(Sidecar()) if not texture_writer else None
+        previewer = _HereOrThere(stack.enter_context(Sidecar()) if not preview_here else None) if preview else None
         layout_path = Path(layout_path)
         layout = read_layout(layout_path)
         rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface,
@@ -127,20 +131,17 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             merger_impl = configured(merger_impl, apply_params(merger_impl.params, merger_params, f"merger {rules.merger}"))
         report = progress or (lambda *_: None)
         textures = stack.enter_context(TexturesNow(texture_writer, rules.seed) if texture_writer
-                                       else TexturePrefetch(rules.seed, side, scratch_dir(outdir, "textures")))
-        previewer = None
-        if preview:
-            previewer = _HereOrThere(pm, None if preview_here else side)
+                                       else TexturePrefetch(rules.seed, texture_side, scratch_dir(outdir, "textures")))
         return _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
                         executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir)
 
 
 class _HereOrThere:
-    """The preview: started as soon as the looks layer is written, in the helper process when
-    there is one (the second core), else run here once the stage is validated."""
+    """The preview: in its helper process when there is one (loading the renderer at once,
+    drawing as soon as the looks layer is written), else here, once the stage is validated."""
 
-    def __init__(self, pm: PluginManager, side: Sidecar | None) -> None:
-        self.pm, self.side = pm, side
+    def __init__(self, side: Sidecar | None) -> None:
+        self.side = side
         self.warm = side.submit(warm_up_renderer) if side is not None else None
         self.job = None
 
@@ -150,7 +151,7 @@ class _HereOrThere:
         else:
             self.job = (path, town_stage, title, town)
 
-    def finish(self) -> dict:
+    def finish(self, pm: PluginManager) -> dict:
         """Timings: ``preview_s`` (the preview's own time), ``preview_wait_s`` (what the composer
         waited for it after validating)."""
         t0 = time.perf_counter()
@@ -161,7 +162,7 @@ class _HereOrThere:
             from .preview import write_preview
 
             path, town_stage, title, town = self.job
-            write_preview(path, town_stage, pm=self.pm, title=title, town=town)
+            write_preview(path, town_stage, pm=pm, title=title, town=town)
             took = time.perf_counter() - t0
         return {"preview_s": took, "preview_wait_s": time.perf_counter() - t0}
 
@@ -242,7 +243,7 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
         summary["markings"] = len(markings)
         summary["materials"] = len(materials)
         if previewer is not None:
-            summary["timings_s"].update({k: round(v, 3) for k, v in previewer.finish().items()})
+            summary["timings_s"].update({k: round(v, 3) for k, v in previewer.finish(pm).items()})
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
     outdir = Path(outdir).resolve()
     return ComposeResult(outdir, outdir / "town.usda", summary)

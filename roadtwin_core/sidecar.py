@@ -56,13 +56,23 @@ class Sidecar:
         self._jobs.put((self._next, fn, args))
         return self._next
 
+    def end_when_done(self) -> None:
+        """The process ends after the jobs submitted so far, giving its memory back; their results
+        stay readable."""
+        self._jobs.put(None)
+
     def result(self, ticket: int) -> Any:
         while ticket not in self._done:
             try:
                 got, ok, value = self._results.get(timeout=0.05)
                 self._done[got] = (ok, value)
             except queue.Empty:
-                if not self._proc.is_alive():
+                if self._proc.is_alive():
+                    continue
+                try:                     # it flushed its results before it ended: read what is left
+                    got, ok, value = self._results.get(timeout=1.0)
+                    self._done[got] = (ok, value)
+                except queue.Empty:
                     raise RoadtwinError(f"the composer's helper process ended unexpectedly "
                                         f"(exit code {self._proc.exitcode})") from None
         ok, value = self._done.pop(ticket)

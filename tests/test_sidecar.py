@@ -95,3 +95,12 @@ def test_the_preview_made_in_the_helper_is_in_the_output(tmp_path):
     timings = json.loads((res.outdir / "summary.json").read_text())["timings_s"]
     assert timings["preview_s"] > 0 and 0 <= timings["preview_wait_s"]
     assert multiprocessing.active_children() == []
+
+
+def test_a_helper_told_to_end_still_hands_over_its_results(tmp_path):
+    with Sidecar() as side:
+        tickets = [side.submit(checksum, np.arange(n)) for n in (10, 1000)]
+        side.end_when_done()
+        side._proc.join(20)
+        assert not side._proc.is_alive()
+        assert [side.result(t) for t in tickets] == [45, 499500]

@@ -32,6 +32,7 @@ class TexturePrefetch:
         self._stage = Path(staging)
         self._sidecar = sidecar
         self._ticket = sidecar.submit(_write_cached, self._stage / "textures", seed)
+        sidecar.end_when_done()          # generating takes ~250 MB: given back as soon as it is done
 
     def collect(self, folder: str | Path) -> dict[str, MaterialSpec]:
         """Wait for the set and move it to ``folder`` (which must not exist yet)."""
