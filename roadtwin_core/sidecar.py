@@ -49,7 +49,7 @@ class Sidecar:
         self._proc = ctx.Process(target=_serve, args=(self._jobs, self._results), daemon=True,
                                  name="roadtwin-sidecar")
         self._proc.start()
-        self._next, self._done = 0, {}
+        self._next, self._done, self._closed = 0, {}, False
 
     def submit(self, fn: Callable, *args: Any) -> int:
         self._next += 1
@@ -81,7 +81,10 @@ class Sidecar:
         return value
 
     def close(self) -> None:
-        """Stop the helper now, whatever it is doing (a compose that failed does not wait)."""
+        """Stop the helper now, whatever it is doing (a compose that failed does not wait); once."""
+        if self._closed:
+            return
+        self._closed = True
         if self._proc.is_alive():
             self._proc.terminate()
         self._proc.join()

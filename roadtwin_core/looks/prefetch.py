@@ -25,8 +25,10 @@ def _write_cached(folder: Path, seed: int) -> dict[str, MaterialSpec]:
 
 class TexturePrefetch:
     """``with TexturePrefetch(seed, sidecar, staging) as tex: ... specs = tex.collect(folder)``;
-    ``staging``: an empty folder of the caller's, removed on close. The sidecar's owner stops it
-    (a compose that fails early does not wait for the set)."""
+    ``staging``: an empty folder of the caller's. The sidecar is this set's alone: closing stops it
+    first (a compose that fails early does not wait for the set), then removes ``staging`` (a
+    helper still writing there would put files back into a removed folder).
+    """
 
     def __init__(self, seed: int, sidecar, staging: Path) -> None:
         self._stage = Path(staging)
@@ -41,6 +43,7 @@ class TexturePrefetch:
         return specs
 
     def close(self) -> None:
+        self._sidecar.close()
         shutil.rmtree(self._stage, ignore_errors=True)
 
     def __enter__(self) -> "TexturePrefetch":
