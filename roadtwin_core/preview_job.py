@@ -9,6 +9,10 @@ warp's kernel cache on a machine's first run, before the town arrives.
 """
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -42,10 +46,39 @@ def warm_up_renderer() -> float:
                         ["pothole"], "warm-up")
     camera = Camera(Intrinsics.from_fov(16, 12, 75.0), look_from((0.0, 0.0, 2.0), 0.0, -0.5))
     try:
-        next(iter(renderer.render(square, [camera], RenderParams(backend=PREVIEW_RENDERER))))
+        with without_cuda_driver_notice():          # warp starts up in this first frame
+            next(iter(renderer.render(square, [camera], RenderParams(backend=PREVIEW_RENDERER))))
     except ImportError:                              # plugin loaded, engine (warp) missing
         return 0.0
     return time.perf_counter() - t0
+
+
+CUDA_DRIVER_NOTICE = "Could not find or load the NVIDIA CUDA driver"
+
+
+@contextlib.contextmanager
+def without_cuda_driver_notice():
+    """Drop warp's "no CUDA driver" notice, pass on everything else written to stderr meanwhile.
+
+    warp's native library prints it (a C ``fprintf`` on fd 2, out of reach of warp's config) on
+    every machine without an NVIDIA driver, i.e. at every compose there, though the preview
+    renders on the CPU by design."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as caught:
+        os.dup2(caught.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            caught.seek(0)
+            kept = [line for line in caught.read().decode(errors="replace").splitlines(keepends=True)
+                    if CUDA_DRIVER_NOTICE not in line]
+            if kept:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
 
 
 def render_preview(path: Path, town_stage: Path, title: str, town) -> dict:

@@ -7,6 +7,7 @@ import json
 import multiprocessing
 import os
 import signal
+import sys
 import time
 from pathlib import Path
 
@@ -104,3 +105,16 @@ def test_a_helper_told_to_end_still_hands_over_its_results(tmp_path):
         side._proc.join(20)
         assert not side._proc.is_alive()
         assert [side.result(t) for t in tickets] == [45, 499500]
+
+
+def test_only_warps_no_cuda_driver_notice_is_dropped(capfd):
+    from roadtwin_core.preview_job import without_cuda_driver_notice
+
+    with without_cuda_driver_notice():
+        os.write(2, b"Warp CUDA warning: Could not find or load the NVIDIA CUDA driver. GPU execution will not be "
+                    b"available.\n")
+        os.write(2, b"kernel cache: something else\n")
+        print("python stderr line", file=sys.stderr)
+    err = capfd.readouterr().err
+    assert "NVIDIA CUDA driver" not in err
+    assert "kernel cache: something else\n" in err and "python stderr line\n" in err
