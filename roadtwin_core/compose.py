@@ -116,7 +116,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     with contextlib.ExitStack() as stack:
         # Started first: the helpers' interpreters boot while the layout is read.
         texture_side = stack.enter_context(Sidecar()) if not texture_writer else None
-        previewer = _HereOrThere(stack.enter_context(Sidecar()) if not preview_here else None) if preview else None
+        preview_side = stack.enter_context(Sidecar()) if preview and not preview_here else None
+        previewer = _HereOrThere(preview_side) if preview else None
         layout_path = Path(layout_path)
         layout = read_layout(layout_path)
         rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface,
@@ -132,8 +133,12 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         report = progress or (lambda *_: None)
         textures = stack.enter_context(TexturesNow(texture_writer, rules.seed) if texture_writer
                                        else TexturePrefetch(rules.seed, texture_side, scratch_dir(outdir, "textures")))
-        return _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
-                        executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir)
+        result = _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
+                          executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir)
+        for side in (texture_side, preview_side):    # what they printed, now that the run succeeded
+            if side is not None:
+                side.replay_output()
+        return result
 
 
 class _HereOrThere:

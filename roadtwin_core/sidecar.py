@@ -6,12 +6,20 @@ Spawned, not forked: a fresh interpreter inherits no threads (USD's, TBB's) and 
 and it may import warp and compile kernels without touching the composer's process. Jobs run one
 at a time, in the order they were submitted; ``submit`` never blocks (a queue's feeder thread
 sends the arguments), so handing over the town's meshes does not wait for an earlier job.
+
+What a helper prints (library warnings, native libraries' notices) is kept in a file, not shown
+as it happens: the composer replays it after a run that succeeded, so bad input still ends in
+exactly one line whatever a helper was doing; a helper that dies is reported with its last line.
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
+import os
 import queue
 import signal
+import sys
+import tempfile
 import traceback
 from typing import Any, Callable
 
@@ -20,21 +28,30 @@ from .errors import RoadtwinError
 __all__ = ["Sidecar"]
 
 
-def _serve(jobs, results) -> None:
+def _serve(jobs, results, log_path: str) -> None:
     # Ctrl-C reaches the whole process group: the composer handles it and stops this process,
     # which must not print a traceback of its own.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    log = os.open(log_path, os.O_WRONLY | os.O_APPEND)
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+    os.close(log)
+    with contextlib.suppress(OSError):        # the composer reads it through its own descriptor
+        os.unlink(log_path)
     while True:
         item = jobs.get()
         if item is None:
             return
         ticket, fn, args = item
         try:
-            results.put((ticket, True, fn(*args)))
+            outcome = (ticket, True, fn(*args))
         except RoadtwinError as exc:
-            results.put((ticket, False, RoadtwinError(str(exc))))
+            outcome = (ticket, False, RoadtwinError(str(exc)))
         except BaseException as exc:                      # noqa: BLE001 - reported in the composer
-            results.put((ticket, False, RuntimeError(f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}")))
+            outcome = (ticket, False, RuntimeError(f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+        sys.stdout.flush()
+        sys.stderr.flush()
+        results.put(outcome)
 
 
 class Sidecar:
@@ -45,8 +62,10 @@ class Sidecar:
 
     def __init__(self) -> None:
         ctx = multiprocessing.get_context("spawn")
+        fd, self._log_path = tempfile.mkstemp(prefix="roadtwin-helper-", suffix=".log")
+        self._log = os.fdopen(fd, "rb")
         self._jobs, self._results = ctx.Queue(), ctx.Queue()
-        self._proc = ctx.Process(target=_serve, args=(self._jobs, self._results), daemon=True,
+        self._proc = ctx.Process(target=_serve, args=(self._jobs, self._results, self._log_path), daemon=True,
                                  name="roadtwin-sidecar")
         self._proc.start()
         self._next, self._done, self._closed = 0, {}, False
@@ -73,12 +92,27 @@ class Sidecar:
                     got, ok, value = self._results.get(timeout=1.0)
                     self._done[got] = (ok, value)
                 except queue.Empty:
+                    last = (self.output().strip().splitlines() or [""])[-1]
                     raise RoadtwinError(f"the composer's helper process ended unexpectedly "
-                                        f"(exit code {self._proc.exitcode})") from None
+                                        f"(exit code {self._proc.exitcode}){': ' + last if last else ''}") from None
         ok, value = self._done.pop(ticket)
         if not ok:
             raise value
         return value
+
+    def output(self) -> str:
+        """What the helper printed so far (stdout and stderr)."""
+        if self._log.closed:
+            return ""
+        self._log.seek(0)
+        return self._log.read().decode(errors="replace")
+
+    def replay_output(self) -> None:
+        """Show what the helper printed, on this process's stderr (after a run that succeeded)."""
+        text = self.output()
+        if text:
+            sys.stderr.write(text if text.endswith("\n") else text + "\n")
+            sys.stderr.flush()
 
     def close(self) -> None:
         """Stop the helper now, whatever it is doing (a compose that failed does not wait); once."""
@@ -91,6 +125,9 @@ class Sidecar:
         for q in (self._jobs, self._results):
             q.cancel_join_thread()
             q.close()
+        self._log.close()
+        with contextlib.suppress(OSError):
+            os.unlink(self._log_path)
 
     def __enter__(self) -> "Sidecar":
         return self

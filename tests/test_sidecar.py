@@ -118,3 +118,28 @@ def test_only_warps_no_cuda_driver_notice_is_dropped(capfd):
     err = capfd.readouterr().err
     assert "NVIDIA CUDA driver" not in err
     assert "kernel cache: something else\n" in err and "python stderr line\n" in err
+
+
+def shout(text: str) -> int:
+    print(text)
+    os.write(2, f"{text} (native)\n".encode())
+    return 1
+
+
+def test_what_a_helper_prints_is_kept_until_asked_for(capfd):
+    with Sidecar() as side:
+        assert side.result(side.submit(shout, "library warning")) == 1
+        assert capfd.readouterr().err == ""                       # nothing shown while it works
+        assert side.output() == "library warning\nlibrary warning (native)\n"
+        side.replay_output()
+        assert capfd.readouterr().err == "library warning\nlibrary warning (native)\n"
+
+
+def test_a_dead_helpers_last_line_names_what_happened(tmp_path):
+    with Sidecar() as side:
+        side.submit(shout, "about to be killed")
+        ticket = side.submit(wait_for_file, tmp_path / "never")
+        time.sleep(1.0)
+        os.kill(side._proc.pid, signal.SIGKILL)
+        with pytest.raises(RoadtwinError, match=r"exit code -9\): about to be killed \(native\)$"):
+            side.result(ticket)
