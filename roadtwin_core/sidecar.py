@@ -21,6 +21,7 @@ import signal
 import sys
 import tempfile
 import traceback
+import types
 from typing import Any, Callable
 
 from .errors import RoadtwinError
@@ -54,6 +55,20 @@ def _serve(jobs, results, log_path: str) -> None:
         results.put(outcome)
 
 
+@contextlib.contextmanager
+def _main_module_hidden():
+    """multiprocessing's spawn runs the parent's ``__main__`` again in the child (its rule for
+    pickled functions from the main script), so a user's script that calls ``compose()`` without an
+    ``if __name__ == "__main__"`` guard would compose again in the helper, which then fails. The
+    helper runs only roadtwin's own functions: the main module is hidden while it starts."""
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        sys.modules["__main__"] = main
+
+
 class Sidecar:
     """``with Sidecar() as side: t = side.submit(fn, *args); ...; side.result(t)``.
 
@@ -67,7 +82,8 @@ class Sidecar:
         self._jobs, self._results = ctx.Queue(), ctx.Queue()
         self._proc = ctx.Process(target=_serve, args=(self._jobs, self._results, self._log_path), daemon=True,
                                  name="roadtwin-sidecar")
-        self._proc.start()
+        with _main_module_hidden():
+            self._proc.start()
         self._next, self._done, self._closed = 0, {}, False
 
     def submit(self, fn: Callable, *args: Any) -> int:

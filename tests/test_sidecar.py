@@ -7,6 +7,7 @@ import json
 import multiprocessing
 import os
 import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -143,3 +144,15 @@ def test_a_dead_helpers_last_line_names_what_happened(tmp_path):
         os.kill(side._proc.pid, signal.SIGKILL)
         with pytest.raises(RoadtwinError, match=r"exit code -9\): about to be killed \(native\)$"):
             side.result(ticket)
+
+
+def test_a_script_without_a_main_guard_can_compose(tmp_path):
+    """A spawned helper would run the parent's unguarded script again (multiprocessing's rule)."""
+    script = tmp_path / "make_town.py"
+    script.write_text("from roadtwin_core.compose import compose\n"
+                      f"res = compose({str(REPO / 'stages' / 'town.usda')!r}, {str(tmp_path / 'out')!r}, defects=2, seed=1)\n"
+                      "print('made', res.town.name)\n")
+    run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip().splitlines()[-1] == "made town.usda"
+    assert (tmp_path / "out" / "preview.png").is_file()
