@@ -21,7 +21,7 @@ from .model import ComposeRules, DefectModel, Placement, TownLayout
 from .contracts import configured
 from .params import apply_params, make_params
 from .placement import lane_length_km, place_defects
-from .preview_job import render_preview, warm_up_renderer
+from .preview_job import PREVIEW_RENDERER, render_preview, warm_up_renderer
 from .plugins import PluginManager, get_plugin_manager
 from .remesh import coarsen_defect
 from .sidecar import Sidecar
@@ -117,7 +117,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         # Started first: the helpers' interpreters boot while the layout is read.
         texture_side = stack.enter_context(Sidecar()) if not texture_writer else None
         preview_side = stack.enter_context(Sidecar()) if preview and not preview_here else None
-        previewer = _HereOrThere(preview_side) if preview else None
+        pm = pm or get_plugin_manager()
+        previewer = _HereOrThere(preview_side, pm) if preview else None
         layout_path = Path(layout_path)
         layout = read_layout(layout_path)
         rules = layout.rules.replace(defect_count=defects, seed=seed, merger=merger, surface=surface,
@@ -126,7 +127,6 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         if defects is None and rules.density_per_km > 0:
             rules = rules.replace(defect_count=int(round(rules.density_per_km * lane_length_km(layout.segments, rules.kinds))))
         layout.rules = rules
-        pm = pm or get_plugin_manager()
         merger_impl = pm.get("mergers", rules.merger)
         if merger_params:  # --param: a configured copy, the registered merger stays as it was
             merger_impl = configured(merger_impl, apply_params(merger_impl.params, merger_params, f"merger {rules.merger}"))
@@ -145,9 +145,13 @@ class _HereOrThere:
     """The preview: in its helper process when there is one (loading the renderer at once,
     drawing as soon as the looks layer is written), else here, once the stage is validated."""
 
-    def __init__(self, side: Sidecar | None) -> None:
+    def __init__(self, side: Sidecar | None, pm: PluginManager) -> None:
         self.side = side
-        self.warm = side.submit(warm_up_renderer) if side is not None else None
+        self.warm = None
+        if side is not None:
+            # the helper loads only the plugin that provides the renderer, if one does
+            provider = pm.provider("renderers", PREVIEW_RENDERER)
+            self.warm = side.submit(warm_up_renderer, (provider,) if provider else None)
         self.job = None
 
     def start(self, path: Path, town_stage: Path, title: str, town) -> None:

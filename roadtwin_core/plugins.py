@@ -8,7 +8,7 @@ from __future__ import annotations
 import importlib.metadata
 import os
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Collection
 
 import pluggy
 
@@ -34,19 +34,21 @@ class PluginInfo:
 class PluginManager:
     """Loads plugins once and answers "give me the merger called X" by name."""
 
-    def __init__(self, load_entry_points: bool = True) -> None:
+    def __init__(self, load_entry_points: bool = True, only: Collection[str] | None = None) -> None:
+        """``only``: load just these entry points (within ``ROADTWIN_PLUGINS``), e.g. the one plugin
+        a helper process needs (:meth:`provider`), not the imports of all of them."""
         self.pm = pluggy.PluginManager("roadtwin")
         self.pm.add_hookspecs(hookspecs)
         self.info: dict[str, PluginInfo] = {}
         self._registries: dict[str, dict[str, Any]] = {}
         if load_entry_points:
-            self._load_entry_points()
+            self._load_entry_points(only)
 
-    def _load_entry_points(self) -> None:
+    def _load_entry_points(self, only: Collection[str] | None = None) -> None:
         allow = os.environ.get(ALLOW_ENV)
         allowed = {a.strip() for a in allow.split(",") if a.strip()} if allow is not None else None
         for ep in sorted(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name):
-            if allowed is not None and ep.name not in allowed:
+            if (allowed is not None and ep.name not in allowed) or (only is not None and ep.name not in only):
                 continue
             version = ep.dist.version if ep.dist is not None else ""
             info = self.info.setdefault(ep.name, PluginInfo(ep.name, version))
@@ -107,6 +109,11 @@ class PluginManager:
             label = kind.replace("_", " ").rstrip("s")
             raise RoadtwinError(f"unknown {label} {name!r} (known: {known})")
         return things[name]
+
+    def provider(self, kind: str, name: str) -> str | None:
+        """The plugin (entry point) that registered the ``kind`` called ``name``, if any."""
+        self.registry(kind)
+        return next((p for p, info in self.info.items() if name in info.registered.get(kind, ())), None)
 
     def load_all(self) -> dict[str, PluginInfo]:
         """Ask every hook once so ``info`` lists everything registered."""
