@@ -206,6 +206,24 @@ def test_allow_list_restricts_loading(fake_eps, monkeypatch):
     assert set(PluginManager().info) == {"a", "b", "c"}
 
 
+def test_one_plugin_found_by_what_it_provides_loads_alone(fake_eps, monkeypatch):
+    """What the composer's preview helper does: ask which plugin provides renderer X, then load
+    only that one (the others are not even imported); the user's allow-list still applies."""
+    eps = fake_eps(FakeEntryPoint("a", plugin_module("fake_pr_a", planners=["pa"])),
+                   FakeEntryPoint("b", plugin_module("fake_pr_b", renderers=["warp"])),
+                   FakeEntryPoint("c", error=ImportError("never loaded")))
+    full = PluginManager()
+    assert full.provider("renderers", "warp") == "b"
+    assert full.provider("renderers", "other") is None and full.provider("planners", "warp") is None
+    for ep in eps:
+        ep.loaded = False
+    alone = PluginManager(only=("b",))
+    assert set(alone.info) == {"b"} and list(alone.registry("renderers")) == ["warp"]
+    assert [ep.loaded for ep in eps] == [False, True, False]
+    monkeypatch.setenv(ALLOW_ENV, "a")
+    assert PluginManager(only=("b",)).info == {}
+
+
 def test_get_plugin_manager_is_shared_and_resettable(fake_eps):
     fake_eps(FakeEntryPoint("one", plugin_module("fake_one", exporters=["usdz"])))
     plugins_mod.reset_plugin_manager()
