@@ -10,7 +10,7 @@ and figure saving cost ~1.5 s of a preview that should take well under one. Give
 alone, both are read back from the written stage, looks included. The composer instead passes
 the town it holds in memory (:class:`~roadtwin_core.preview_scene.PreviewTown`): the same
 triangles, labels and st through the writer's own functions, the materials parsed from the
-stage's looks layer or handed over in memory (textures at the MIP level the frame needs), and only the road the camera
+stage's looks layer (textures at the MIP level the frame needs), and only the road the camera
 can see (its horizontal wedge, within 150 m) in the ray-casting scene (reading Town01 back cost
 ~6 s). Without a usable renderer (warp not installed, plugin not loaded) the map stands alone
 with a note saying why.

@@ -5,9 +5,8 @@ building a ray-casting scene over its 1.8 M triangles took ~6-20 s; the preview 
 (geometry and labels only) and one view of the road around one camera. Geometry, labels and
 st come from the composer's in-memory meshes, through the same functions the writer uses
 (``segment_st`` / ``planar_st``, the catalog's binding rules); the materials themselves are
-parsed from the stage's own looks layer (``layers/looks.usda``, a small file), or given in
-memory (``materials``, e.g. :func:`materials_from_specs`: the same network parsed by the same
-reader, before the layer is written), so the view shows the stage's materials.
+parsed from the stage's own looks layer (``layers/looks.usda``, a small file, which the composer
+writes first), so the view shows the stage's materials.
 tests/test_preview_scene.py checks the result against ``build_render_mesh(load_town(stage, looks=True))``.
 
 Cost (Town01, 1,000 defects, 2 cores): the parts are concatenated once (~0.05 s) and the map
@@ -37,14 +36,7 @@ class PreviewTown:
     placements: list[Placement]
     markings: list = field(default_factory=list)
     looks_layer: Path | None = None
-    # material name -> parsed TownMaterial (what ``_stage_materials`` reads from the looks
-    # layer): a caller that holds them renders before ``layers/looks.usda`` is on disk
-    materials: dict | None = None
     _geometry: object = field(default=None, init=False, repr=False, compare=False)
-
-    def stage_materials(self) -> dict:
-        """Material name -> parsed ``TownMaterial``: ``materials`` when given, else the looks layer's."""
-        return self.materials if self.materials is not None else _stage_materials(self.looks_layer)
 
     def lanes(self):
         from .render import Lane
@@ -177,7 +169,7 @@ class PreviewTown:
         if defect.any():
             uv[defect] = np.asarray(planar_st(vertices), np.float32)[faces[defect]]
         # materials: only those of the faces kept, decoded once each (a 1024 px material is ~30 MB)
-        stage_mats = self.stage_materials()
+        stage_mats = _stage_materials(self.looks_layer)
         p_mat = [defect_material(p.model.defect_type) for p in self.placements]
         names = sorted({p_mat[i] for i in np.unique(place[defect])} | {g.mats[k] for k in np.unique(part[~defect])})
         materials, slot = [DEFAULT_MATERIAL], {}
@@ -273,29 +265,6 @@ def _decode_reduced(tex, max_texels: int) -> np.ndarray:
     return np.ascontiguousarray(out, dtype=np.float32)
 
 
-def materials_from_specs(specs: dict, layers_dir: Path, root: str) -> dict:
-    """Material name -> parsed ``TownMaterial`` of the looks layer that ``write_looks`` will
-    write into ``layers_dir`` for ``specs`` (``MaterialSpec`` by name), without waiting for it:
-    the same ``define_material`` network, parsed by the same reader, on an in-memory layer
-    anchored in ``layers_dir`` (so its ``../textures`` paths resolve; the textures must be there)."""
-    from pxr import Sdf, Usd, UsdShade
-
-    from .usd.looks import define_material
-    from .usd.looks_reader import parse_material
-
-    layer = Sdf.Layer.New(Sdf.FileFormat.FindByExtension("usda"), str(Path(layers_dir) / "_preview_looks.usda"))
-    try:
-        stage = Usd.Stage.Open(layer)
-        out = {}
-        for name in sorted(specs):
-            mat = define_material(stage, root, specs[name])
-            out.setdefault(mat.GetPrim().GetName(), parse_material(UsdShade.Material(mat.GetPrim())))
-        del stage
-    finally:
-        layer.Clear()
-    return out
-
-
 def _stage_materials(looks_layer: Path | None) -> dict:
     """Material name -> parsed ``TownMaterial`` of every ``UsdShade.Material`` in the looks layer."""
     if looks_layer is None or not Path(looks_layer).exists():
@@ -312,4 +281,4 @@ def _stage_materials(looks_layer: Path | None) -> dict:
     return out
 
 
-__all__ = ["PreviewTown", "VIEW_RANGE_M", "materials_from_specs", "preview_material"]
+__all__ = ["PreviewTown", "VIEW_RANGE_M", "preview_material"]

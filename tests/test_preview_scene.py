@@ -115,49 +115,6 @@ def test_view_wedge_keeps_everything_the_camera_sees(composed):
     np.testing.assert_allclose(a.depth, b.depth, rtol=1e-4, atol=1e-3)
 
 
-def test_materials_in_memory_are_the_written_looks_layer(composed, tmp_path):
-    """A caller that holds the material specs renders before looks.usda is written: their
-    in-memory parse equals the composed stage's looks layer (same textures, channels, colour
-    space, scale, bias, wrap), and the view made from either is the same."""
-    import dataclasses
-
-    from roadtwin_core.looks.cache import write_textures_cached
-    from roadtwin_core.preview_scene import _stage_materials, materials_from_specs
-
-    res, town = composed
-    specs = write_textures_cached(tmp_path / "textures", 3)          # compose ran with seed 3
-    (tmp_path / "layers").mkdir()
-    ours = materials_from_specs(specs, tmp_path / "layers", "/Town")
-    ref = _stage_materials(res.outdir / "layers" / "looks.usda")
-    assert sorted(ours) == sorted(ref) and len(ours) >= 5
-
-    def neutral(m):            # the same material in another folder and under another root prim
-        tex = {k: dataclasses.replace(getattr(m, k), path=Path(getattr(m, k).path).name)
-               for k in ("diffuse_texture", "roughness_texture", "normal_texture") if getattr(m, k) is not None}
-        return dataclasses.replace(m, name=m.name.rsplit("/", 1)[-1], **tex)
-
-    for name in ref:
-        assert neutral(ours[name]) == neutral(ref[name]), name
-        for k in ("diffuse_texture", "roughness_texture", "normal_texture"):
-            t = getattr(ours[name], k)
-            assert t is None or Path(t.path).is_file()
-    spot = choose_spot_for(town)
-    from_layer = dataclasses.replace(town, looks_layer=res.outdir / "layers" / "looks.usda", materials=None)
-    in_memory = dataclasses.replace(town, looks_layer=None, materials=ours)
-    a, b = from_layer.view_mesh(spot), in_memory.view_mesh(spot)
-    np.testing.assert_array_equal(a.face_material, b.face_material)
-    assert [m.name.rsplit("/", 1)[-1] for m in a.materials] == [m.name.rsplit("/", 1)[-1] for m in b.materials]
-    for ma, mb in zip(a.materials, b.materials):
-        np.testing.assert_array_equal(ma.diffuse, mb.diffuse)
-        np.testing.assert_array_equal(ma.roughness, mb.roughness)
-
-
-def choose_spot_for(town):
-    from roadtwin_core.preview import choose_spot
-
-    return choose_spot(town.lanes(), np.array([[p.x, p.y] for p in town.placements]))
-
-
 def test_kernel_load_leaves_warps_settings_alone():
     """The renderer loads its kernels without precompiled headers (cheaper first compile) and
     puts warp's global setting back for everyone else."""
