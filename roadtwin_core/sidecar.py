@@ -10,16 +10,23 @@ sends the arguments), so handing over the town's meshes does not wait for an ear
 What a helper prints (library warnings, native libraries' notices) is kept in a file, not shown
 as it happens: the composer replays it after a run that succeeded, so bad input still ends in
 exactly one line whatever a helper was doing; a helper that dies is reported with its last line.
+
+Jobs and results travel over two plain pipes, not ``multiprocessing.Queue``: a queue's locks are
+named POSIX semaphores kept by multiprocessing's resource tracker, and a helper stopped while it
+starts (bad input found just after it was launched) could leave the tracker printing "leaked
+semaphore" warnings after the one line of the error. Pipes hold nothing the tracker keeps.
 """
 from __future__ import annotations
 
 import contextlib
 import multiprocessing
 import os
+import pickle
 import queue
 import signal
 import sys
 import tempfile
+import threading
 import traceback
 import types
 from typing import Any, Callable
@@ -40,7 +47,10 @@ def _serve(jobs, results, log_path: str) -> None:
     with contextlib.suppress(OSError):        # the composer reads it through its own descriptor
         os.unlink(log_path)
     while True:
-        item = jobs.get()
+        try:
+            item = jobs.recv()
+        except EOFError:                      # the composer is gone
+            return
         if item is None:
             return
         ticket, fn, args = item
@@ -52,7 +62,22 @@ def _serve(jobs, results, log_path: str) -> None:
             outcome = (ticket, False, RuntimeError(f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
         sys.stdout.flush()
         sys.stderr.flush()
-        results.put(outcome)
+        try:
+            results.send(outcome)
+        except (TypeError, AttributeError, pickle.PicklingError) as exc:   # a result that cannot travel
+            results.send((ticket, False, RuntimeError(f"the job's result cannot be sent back: {exc}")))
+
+
+def _feed(outbox: queue.SimpleQueue, jobs) -> None:
+    """Sends the submitted jobs in order, so that ``submit`` never waits for the helper to read."""
+    while (item := outbox.get()) is not _STOP:
+        try:
+            jobs.send(item)
+        except OSError:                       # the helper is gone: result() reports it
+            return
+
+
+_STOP = object()
 
 
 @contextlib.contextmanager
@@ -79,42 +104,50 @@ class Sidecar:
         ctx = multiprocessing.get_context("spawn")
         fd, self._log_path = tempfile.mkstemp(prefix="roadtwin-helper-", suffix=".log")
         self._log = os.fdopen(fd, "rb")
-        self._jobs, self._results = ctx.Queue(), ctx.Queue()
-        self._proc = ctx.Process(target=_serve, args=(self._jobs, self._results, self._log_path), daemon=True,
+        jobs_in, self._jobs = ctx.Pipe(duplex=False)
+        self._results, results_out = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_serve, args=(jobs_in, results_out, self._log_path), daemon=True,
                                  name="roadtwin-sidecar")
         with _main_module_hidden():
             self._proc.start()
+        jobs_in.close()          # the helper holds its own ends: its death reads as end-of-file here
+        results_out.close()
+        self._outbox: queue.SimpleQueue = queue.SimpleQueue()
+        self._feeder = threading.Thread(target=_feed, args=(self._outbox, self._jobs), daemon=True,
+                                        name="roadtwin-sidecar-feeder")
+        self._feeder.start()
         self._next, self._done, self._closed = 0, {}, False
 
     def submit(self, fn: Callable, *args: Any) -> int:
         self._next += 1
-        self._jobs.put((self._next, fn, args))
+        self._outbox.put((self._next, fn, args))
         return self._next
 
     def end_when_done(self) -> None:
         """The process ends after the jobs submitted so far, giving its memory back; their results
         stay readable."""
-        self._jobs.put(None)
+        self._outbox.put(None)
 
     def result(self, ticket: int) -> Any:
         while ticket not in self._done:
-            try:
-                got, ok, value = self._results.get(timeout=0.05)
+            if self._results.poll(0.05):
+                try:
+                    got, ok, value = self._results.recv()
+                except EOFError:
+                    self._proc.join(1.0)
+                    self._raise_dead()
                 self._done[got] = (ok, value)
-            except queue.Empty:
-                if self._proc.is_alive():
-                    continue
-                try:                     # it flushed its results before it ended: read what is left
-                    got, ok, value = self._results.get(timeout=1.0)
-                    self._done[got] = (ok, value)
-                except queue.Empty:
-                    last = (self.output().strip().splitlines() or [""])[-1]
-                    raise RoadtwinError(f"the composer's helper process ended unexpectedly "
-                                        f"(exit code {self._proc.exitcode}){': ' + last if last else ''}") from None
+            elif not self._proc.is_alive() and not self._results.poll(0):
+                self._raise_dead()
         ok, value = self._done.pop(ticket)
         if not ok:
             raise value
         return value
+
+    def _raise_dead(self):
+        last = (self.output().strip().splitlines() or [""])[-1]
+        raise RoadtwinError(f"the composer's helper process ended unexpectedly "
+                            f"(exit code {self._proc.exitcode}){': ' + last if last else ''}") from None
 
     def output(self) -> str:
         """What the helper printed so far (stdout and stderr)."""
@@ -138,9 +171,10 @@ class Sidecar:
         if self._proc.is_alive():
             self._proc.terminate()
         self._proc.join()
-        for q in (self._jobs, self._results):
-            q.cancel_join_thread()
-            q.close()
+        self._outbox.put(_STOP)
+        self._feeder.join()      # a send in progress ends with the helper's end of the pipe
+        self._jobs.close()
+        self._results.close()
         self._log.close()
         with contextlib.suppress(OSError):
             os.unlink(self._log_path)

@@ -156,3 +156,18 @@ def test_a_script_without_a_main_guard_can_compose(tmp_path):
     assert run.returncode == 0, run.stderr
     assert run.stdout.strip().splitlines()[-1] == "made town.usda"
     assert (tmp_path / "out" / "preview.png").is_file()
+
+
+def test_a_helper_leaves_nothing_for_the_resource_tracker(monkeypatch):
+    """Named semaphores (a multiprocessing.Queue's locks) stay with the resource tracker; a helper
+    stopped while it starts could leave it warning about "leaked semaphores" after bad input's one
+    line of error (seen in CI). The helper's channels must hold no such resource."""
+    from multiprocessing import resource_tracker
+
+    registered = []
+    monkeypatch.setattr(resource_tracker, "register", lambda name, rtype: registered.append((name, rtype)))
+    with Sidecar() as side:
+        assert side.result(side.submit(checksum, np.arange(4))) == 6
+    with Sidecar():
+        pass                                      # stopped while it starts
+    assert registered == []
