@@ -38,9 +38,9 @@ def main() -> None:
 
     import roadtwin_core.render.events as EV
     import roadtwin_warp_render.event_kernels as EK
-    wp = EK.wp
-    wp.config.quiet = True
-    wp.init()
+    from roadtwin_core.warp_runtime import start_warp
+
+    wp = start_warp()
     dev = wp.get_device(args.device)
 
     @wp.kernel(enable_backward=False, module="unique")

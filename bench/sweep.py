@@ -145,10 +145,11 @@ def main() -> None:
     import roadtwin_warp_physics.kernels as K
     import warp as wp
 
-    K.quiet()
+    from roadtwin_core.warp_runtime import start_warp
+
     if args.cache_dir:
         wp.config.kernel_cache_dir = args.cache_dir
-    wp.init()
+    start_warp()
     cache = Path(wp.config.kernel_cache_dir)
     cached = sorted(p.name for p in cache.iterdir()) if cache.is_dir() else []
     print(f"warp {wp.config.version}, kernel cache {cache}: {len(cached)} module(s) cached before this run")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import shutil
 import time
@@ -224,7 +225,8 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
             write_defect_asset(m, tmp / "library" / f"{m.name}.usda")
             library_files[m.name] = f"./library/{m.name}.usda"
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
-                "merger": rules.merger, "defectCount": len(placements)}
+                "merger": rules.merger, "mergerParams": merger_params_json(merger_impl),
+                "defectCount": len(placements)}
         materials = textures.collect(tmp / "textures")
         t_textures = time.perf_counter()
 
@@ -249,6 +251,7 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
                            {"place_s": t_place - t0, "merge_s": t_merge - t_place, "markings_s": t_markings - t_merge,
                             "textures_s": t_textures - t_markings, "write_s": t_written - t_textures,
                             "validate_s": t_write - t_written})
+        summary["merger_params"] = json.loads(info["mergerParams"])
         summary["markings"] = len(markings)
         summary["materials"] = len(materials)
         if previewer is not None:
@@ -268,6 +271,14 @@ def _stop_helper_on_failure(previewer: _HereOrThere | None):
         if previewer is not None and previewer.side is not None:
             previewer.side.close()
         raise
+
+
+def merger_params_json(merger_impl) -> str:
+    """The merger's effective parameters (defaults and ``--param`` values) as sorted JSON: the
+    stage records what made it, so a run with other values can be told apart and repeated."""
+    params = getattr(merger_impl, "params", None)
+    values = dataclasses.asdict(params) if dataclasses.is_dataclass(params) and not isinstance(params, type) else {}
+    return json.dumps(values, sort_keys=True)
 
 
 def _merge_segment(context, item):

@@ -9,14 +9,12 @@ warp's kernel cache on a machine's first run, before the town arrives.
 """
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .warp_runtime import without_cuda_driver_notice
 
 __all__ = ["warm_up_renderer", "render_preview"]
 
@@ -65,34 +63,6 @@ def warm_up_renderer(plugins: tuple[str, ...] | None = None) -> float:
     except ImportError:                              # plugin loaded, engine (warp) missing
         return 0.0
     return time.perf_counter() - t0
-
-
-CUDA_DRIVER_NOTICE = "Could not find or load the NVIDIA CUDA driver"
-
-
-@contextlib.contextmanager
-def without_cuda_driver_notice():
-    """Drop warp's "no CUDA driver" notice, pass on everything else written to stderr meanwhile.
-
-    warp's native library prints it (a C ``fprintf`` on fd 2, out of reach of warp's config) on
-    every machine without an NVIDIA driver, i.e. at every compose there, though the preview
-    renders on the CPU by design."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as caught:
-        os.dup2(caught.fileno(), 2)
-        try:
-            yield
-        finally:
-            sys.stderr.flush()
-            os.dup2(saved, 2)
-            os.close(saved)
-            caught.seek(0)
-            kept = [line for line in caught.read().decode(errors="replace").splitlines(keepends=True)
-                    if CUDA_DRIVER_NOTICE not in line]
-            if kept:
-                sys.stderr.write("".join(kept))
-                sys.stderr.flush()
 
 
 def render_preview(path: Path, town_stage: Path, title: str, town) -> dict:

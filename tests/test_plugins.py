@@ -584,6 +584,14 @@ def test_compose_merger_param_reaches_a_copy_of_the_merger(tmp_path):
             pm=pm, merger_params={"min_angle_deg": 25})
     assert seen and {p.min_angle_deg for p in seen} == {25.0}
     assert registered.params.min_angle_deg == CDTMerger().params.min_angle_deg != 25.0
+    # the stage and the summary say which values made the town (defaults included)
+    from pxr import Usd
+    import json as _json
+
+    stage = Usd.Stage.Open(str(tmp_path / "town" / "town.usda"))
+    recorded = _json.loads(stage.GetDefaultPrim().GetAttribute("roadtwin:compose:mergerParams").Get())
+    assert recorded == {**dataclasses.asdict(CDTMerger().params), "min_angle_deg": 25.0}
+    assert _json.loads((tmp_path / "town" / "summary.json").read_text())["merger_params"] == recorded
     with pytest.raises(RoadtwinError, match="merger spy: parameter min_angle_deg must be <= 30.0"):
         compose(layout, tmp_path / "town2", defects=0, merger="spy", preview=False, executor="serial", pm=pm,
                 merger_params={"min_angle_deg": 31})

@@ -54,6 +54,7 @@ import numpy as np
 import warp as wp
 
 from roadtwin_core.vehicle import resample_path, resampled_path_at
+from roadtwin_core.warp_runtime import start_warp
 
 GRAVITY = 9.81
 
@@ -79,14 +80,6 @@ _NO_GRAD = {"enable_backward": False}
 def kernel(f):
     """``wp.kernel`` in a module of its own, forward only."""
     return wp.kernel(f, enable_backward=False, module="unique", module_options=_NO_GRAD)
-
-
-def quiet() -> None:
-    """No init banner or per-module load lines (warnings still show)."""
-    if hasattr(wp.config, "log_level") and hasattr(wp, "LOG_WARNING"):
-        wp.config.log_level = wp.LOG_WARNING
-    else:  # older warp
-        wp.config.quiet = True
 
 
 def pack_vehicle(p: dict) -> np.ndarray:
@@ -819,8 +812,7 @@ class VehicleSim:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, device: str = "cpu",
                  bvh_constructor: str | None = "sah") -> None:
-        quiet()
-        wp.init()
+        start_warp()
         self.device = wp.get_device(device)
         v = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
         f = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1)

@@ -24,10 +24,10 @@ from roadtwin_core.render import (Camera, Frame, RenderMesh, RenderParams, Stere
 
 
 def _rc():
-    """The kernels module, importing warp quietly (no banner or compile lines on stdout)."""
-    import warp as wp
+    """The kernels module, warp started quietly (no banner, module-load lines or CUDA notice)."""
+    from roadtwin_core.warp_runtime import start_warp
 
-    wp.config.log_level = max(wp.config.log_level, 30)
+    start_warp()
     from . import raycast
 
     return raycast
