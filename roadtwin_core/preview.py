@@ -17,6 +17,7 @@ with a note saying why.
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -275,6 +276,7 @@ MAP_SIZE = (640, RENDER_SIZE[1])    # the map fits this box (pixels), beside the
 _INK, _NOTE_INK = (20, 20, 20), (140, 0, 0)
 
 
+@functools.lru_cache(maxsize=None)
 def _font(size: int):
     from PIL import ImageFont
 

@@ -35,6 +35,18 @@ def _plugins(only=None):
     return _PLUGINS
 
 
+def _import_preview_modules() -> None:
+    """What the preview imports (USD, OpenCV, Pillow and its font, the preview's own modules:
+    ~0.25 s), imported while the helper waits for the town rather than after it arrives."""
+    import cv2  # noqa: F401
+    from pxr import Usd, UsdShade  # noqa: F401
+
+    from . import preview, preview_scene  # noqa: F401
+    from .usd import looks_reader, town, town_reader  # noqa: F401
+
+    preview._font(14), preview._font(12)
+
+
 def warm_up_renderer(plugins: tuple[str, ...] | None = None) -> float:
     """Seconds spent loading the preview renderer (from the entry points ``plugins``; None: all)
     and rendering a 16 x 12 frame of a textured square. Without a usable renderer this does
@@ -44,6 +56,7 @@ def warm_up_renderer(plugins: tuple[str, ...] | None = None) -> float:
     from .render.scene import RenderMaterial, RenderMesh
 
     t0 = time.perf_counter()
+    _import_preview_modules()
     try:
         renderer = _plugins(plugins).get("renderers", PREVIEW_RENDERER)
     except RoadtwinError:
