@@ -1,7 +1,7 @@
 """``roadtwin render``: synthetic perception datasets from a composed town.
 
-One concern per module: ``options`` (checks of the command's options), ``lanes`` (the lane a camera
-drives in), ``pipeline`` (frame jobs and what one worker does with its chunk), ``writers`` (the
+One concern per module: ``options`` (checks of the command's options and the camera rig),
+``cameras`` (where the frames' cameras come from), ``lanes`` (the lane a camera drives in), ``pipeline`` (frame jobs and what one worker does with its chunk), ``writers`` (the
 dataset writer and its format registry), ``run`` (``run_render`` ties them together), ``report``
 (what the command prints). Cameras, frames, render meshes and the renderer contract's data are the
 framework's (``roadtwin_core.render``).

@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import math
 import re
+from dataclasses import dataclass
 
 from ...errors import RoadtwinError
 
-__all__ = ["MAX_FRAMES", "check_range", "parse_size", "parse_views", "pick"]
+__all__ = ["MAX_FRAMES", "Rig", "check_range", "check_rig", "parse_size", "parse_views", "pick", "resolve_rig"]
 
 
 def parse_size(text: str, what: str = "--size") -> tuple[int, int]:
@@ -55,3 +56,40 @@ def pick(explicit, preset_value, default):
     """The explicit option, else the rig preset's value, else the default."""
     return explicit if explicit is not None else preset_value if preset_value is not None else default
 
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The camera rig a render uses: a preset's values (``--rig``) with explicit options over them."""
+
+    width: int
+    height_px: int
+    hfov_deg: float
+    mount_height_m: float
+    pitch_deg: float | None
+    stereo: bool
+    baseline_m: float
+    preset: object | None          # the ``RigPreset`` named by --rig, if any
+    size_given: bool               # --size was given (stage cameras are then rendered at that size)
+
+
+def resolve_rig(rig: str | None, size: str | None, hfov: float | None, height: float | None, pitch: float | None,
+                baseline: float | None, stereo: bool) -> Rig:
+    """``--rig`` and the options that override it, checked (one line naming the option)."""
+    from ...render.rig_usd import rig_preset
+
+    preset = rig_preset(rig) if rig is not None else None
+    size_text = size if size is not None else (f"{preset.width}x{preset.height}" if preset else "640x480")
+    width, height_px = parse_size(size_text)
+    return Rig(width, height_px, pick(hfov, preset and preset.hfov_deg, 90.0), pick(height, preset and preset.height_m, 1.5),
+               pick(pitch, preset and preset.pitch_deg, None), bool(stereo or (preset is not None and preset.baseline_m)),
+               pick(baseline, preset and preset.baseline_m, 0.54), preset, size is not None)
+
+
+def check_rig(r: Rig) -> None:
+    check_range("--hfov", r.hfov_deg, 1.0, 179.0, "degrees")
+    check_range("--height", r.mount_height_m, 1e-3, 1000.0, "m")
+    if r.pitch_deg is not None:
+        check_range("--pitch", r.pitch_deg, -89.0, 89.0, "degrees")
+    if r.stereo:
+        check_range("--baseline", r.baseline_m, 1e-3, 100.0, "m")
