@@ -3,6 +3,7 @@ phase split and output size, for 1,000 and 10,000 defects, in one run.
 
     .venv/bin/python bench/town.py                       # 1,000 and 10,000 defects
     .venv/bin/python bench/town.py --counts 1000 --executor ray
+    .venv/bin/python bench/town.py --counts 1000 --preview-cost 3   # + what the preview adds
 
 Import: ``roadtwin import opendrive tests/data/opendrive/Town01.xodr`` in a fresh process (wall
 time, including interpreter start). Compose: the plain CLI, ``roadtwin compose town01.usda
@@ -107,6 +108,9 @@ def main() -> None:
     ap.add_argument("--counts", type=int, nargs="+", default=[1000, 10000])
     ap.add_argument("--executor", default=None)
     ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--preview-cost", type=int, default=0, metavar="PAIRS",
+                    help="then compose the smallest count PAIRS times with and without --no-preview, "
+                         "alternating, and print what the preview adds to the command's wall time")
     args = ap.parse_args()
     extra = [a for k, v in (("--executor", args.executor), ("--workers", args.workers)) if v is not None
              for a in (k, str(v))]
@@ -145,6 +149,27 @@ def main() -> None:
                   f"{s['triangles']:>9} " + " ".join(f"{t.get(p + '_s', float('nan')):>10.2f}" for p in PHASES)
                   + "  " + ", ".join(verdict))
             sys.stdout.flush()
+        if args.preview_cost:
+            preview_cost(layout, min(args.counts), args.preview_cost, Path(tmp), extra)
+
+
+def preview_cost(layout: Path, count: int, pairs: int, tmp: Path, extra: list[str]) -> None:
+    """What ``preview.png`` adds to the command a user waits for: the plain compose against
+    ``--no-preview``, alternated so that drift in the machine's state hits both alike (medians)."""
+    import statistics
+
+    walls = {"preview": [], "no preview": []}
+    for k in range(pairs):
+        for label, flags in (("preview", []), ("no preview", ["--no-preview"])):
+            r = run_cli(layout, count, tmp / f"cost{k}{len(flags)}", extra + flags)
+            if not r.get("ok"):
+                sys.exit(f"compose failed: {r['error']}")
+            walls[label].append(r["wall_s"])
+    med = {k: statistics.median(v) for k, v in walls.items()}
+    print(f"\npreview cost at {count} defects ({pairs} pairs): with {med['preview']:.2f} s "
+          f"[{min(walls['preview']):.2f}-{max(walls['preview']):.2f}], --no-preview {med['no preview']:.2f} s "
+          f"[{min(walls['no preview']):.2f}-{max(walls['no preview']):.2f}]: the preview adds "
+          f"{med['preview'] - med['no preview']:.2f} s")
 
 
 if __name__ == "__main__":
