@@ -22,8 +22,8 @@ import importlib
 # ``roadtwin_core.vehicle`` on a GPU machine with only numpy + warp) does not pull in shapely,
 # scipy and pluggy through the data model, surfaces and plugin manager.
 _WHERE = {
-    **dict.fromkeys(("DefectType", "Exporter", "LayoutImporter", "Merger", "PhysicsBackend", "Planner",
-                     "Reconstructor", "Renderer", "RendererBase", "SurfaceSource"), "contracts"),
+    **dict.fromkeys(("DatasetFormat", "DefectType", "Exporter", "LayoutImporter", "Merger", "PhysicsBackend",
+                     "Planner", "Reconstructor", "Renderer", "RendererBase", "SurfaceSource"), "contracts"),
     "RoadtwinError": "errors",
     **dict.fromkeys(("MARKING_TYPES", "ComposeRules", "DefectModel", "FixedDefect", "LaneMarking", "MergedSegment",
                      "Placement", "RoadSegment", "TownLayout", "polygon_area", "triangle_areas"), "model"),

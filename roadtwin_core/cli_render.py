@@ -40,6 +40,7 @@ def render(
                                              "else 0.54 as KITTI)"),
     events: bool = typer.Option(False, "--events", help="also simulate an event camera on a continuous drive"),
     formats: Optional[str] = typer.Option(None, "--formats", help="comma-separated: kitti,mmseg,coco,depth,normal "
+                                          "or a plugin's dataset format "
                                           "(default: all that apply)"),
     seed: int = typer.Option(0, "--seed", help="random seed for poses and randomization"),
     hfov: Optional[float] = typer.Option(None, "--hfov", help="horizontal field of view in degrees (default: the "

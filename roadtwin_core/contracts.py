@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Iterator, Literal, Protocol, runtime_checkable
 
 __all__ = ["DefectType", "Reconstructor", "Merger", "LayoutImporter", "Renderer", "RendererBase",
-           "PhysicsBackend", "Planner", "Exporter", "SurfaceSource", "PROTOCOLS", "check",
+           "PhysicsBackend", "Planner", "Exporter", "SurfaceSource", "DatasetFormat", "PROTOCOLS", "check",
            "params_class", "configured"]
 
 
@@ -178,10 +178,28 @@ class SurfaceSource(Protocol):
         """-> :class:`~roadtwin_core.SurfaceModel`."""
 
 
+@runtime_checkable
+class DatasetFormat(Protocol):
+    """A dataset layout ``roadtwin render --formats NAME`` writes; ``needs_stereo``: only with
+    ``--stereo``. The core's own formats (kitti, mmseg, coco, depth, normal) keep their names."""
+
+    name: str
+    description: str
+    needs_stereo: bool
+
+    def writer(self, dataset) -> Any:
+        """The writer of one render. ``dataset`` is the core's dataset writer (``root``,
+        ``classes``, ``palette``, ``intrinsics``, ``instances``, ``categories``). The writer's
+        ``add(k, stem, frame, files) -> dict`` writes frame ``k``'s files under ``dataset.root``,
+        records their paths in ``files`` and returns extra meta.json fields of the frame;
+        ``finish()`` runs once after the last frame."""
+
+
 PROTOCOLS: dict[str, type] = {
     "defect_types": DefectType, "reconstructors": Reconstructor, "mergers": Merger,
     "layout_importers": LayoutImporter, "renderers": Renderer, "physics_backends": PhysicsBackend,
     "planners": Planner, "exporters": Exporter, "surface_sources": SurfaceSource,
+    "dataset_formats": DatasetFormat,
 }
 
 _PRODUCES = ("surface", "defects")

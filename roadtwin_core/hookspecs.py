@@ -66,3 +66,9 @@ def roadtwin_register_exporters(register):
 def roadtwin_register_surface_sources(register):
     """Elevation sources for ``--surface SCHEME:ARG`` beyond the core's flat / iso8608 / usd:
     :class:`~roadtwin_core.contracts.SurfaceSource`."""
+
+
+@hookspec
+def roadtwin_register_dataset_formats(register):
+    """Dataset layouts for ``roadtwin render --formats NAME`` beyond the core's kitti / mmseg /
+    coco / depth / normal: :class:`~roadtwin_core.contracts.DatasetFormat`."""

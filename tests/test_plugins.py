@@ -33,6 +33,7 @@ class Thing:
     params = NoParams()
     produces = "surface"
     suffix = ".x"
+    needs_stereo = False
 
     def __init__(self, name: str, description: str = "") -> None:
         self.name = name
@@ -51,6 +52,7 @@ class Thing:
     def simulate(self, road_mesh, vehicles, params): return None
     def plan(self, grid, start, goal, vehicle, collision, params, rng): return None
     def export(self, stage_path, out_path): return out_path
+    def writer(self, dataset): return None
 
 
 def plugin_module(modname: str, **hooks) -> types.ModuleType:

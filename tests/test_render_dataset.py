@@ -12,6 +12,7 @@ import json
 import math
 import shutil
 import subprocess
+import types
 import sys
 from pathlib import Path
 
@@ -20,6 +21,7 @@ import numpy as np
 import pytest
 import triangle
 
+import roadtwin_core
 import roadtwin_defects
 import roadtwin_warp_render
 from roadtwin_core import ComposeRules, PluginManager, RoadSegment, RoadtwinError, TownLayout
@@ -456,3 +458,78 @@ def test_crack_growth_keeps_pothole_over_crack_over_lane():
     np.testing.assert_array_equal(m.spread(lab), expected)
     with pytest.raises(RoadtwinError, match=r"\[dilate_px\] crack"):
         parse_class_map('classes = ["a", "crack"]\n[map]\ncrack = ["crack"]\n[dilate_px]\ncrack = -1\n', "f.toml")
+
+
+class YoloBoxes:
+    """A third party's dataset format: one YOLO text file per frame, ``class cx cy w h`` (image
+    fractions) per defect instance in view, written through the ``dataset_formats`` hook."""
+
+    name, description, needs_stereo = "yolo_boxes", "YOLO boxes of defect instances", False
+
+    def writer(self, dataset):
+        fmt = self
+
+        class Writer:
+            def __init__(self):
+                (dataset.root / "yolo").mkdir()
+                self.frames = 0
+
+            def add(self, k, stem, frame, files):
+                h, w = frame.instance.shape
+                lines = []
+                for inst in dataset.instances:
+                    ys, xs = np.nonzero(frame.instance == inst["id"])
+                    if len(xs):
+                        cls = dataset.categories.index(inst["type"])
+                        x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
+                        lines.append(f"{cls} {(x0 + x1) / 2 / w:.6f} {(y0 + y1) / 2 / h:.6f} "
+                                     f"{(x1 - x0) / w:.6f} {(y1 - y0) / h:.6f}")
+                (dataset.root / "yolo" / f"{stem}.txt").write_text("".join(line + "\n" for line in lines))
+                files[fmt.name] = f"yolo/{stem}.txt"
+                self.frames += 1
+                return {"yolo_boxes": len(lines)}
+
+            def finish(self):
+                (dataset.root / "yolo" / "classes.txt").write_text("\n".join(dataset.categories) + "\n")
+
+        return Writer()
+
+
+def test_a_plugin_adds_a_dataset_format(road, tmp_path):
+    """`--formats` reaches a plugin's format: its writer gets every frame, its files are listed in
+    meta.json, its boxes enclose the instance pixels the core's COCO writer saved; a plugin format
+    named like a core one does not replace the core's."""
+    class FakeMmseg(YoloBoxes):
+        name = "mmseg"
+
+    mod = types.ModuleType("fake_yolo")
+    mod.roadtwin_register_dataset_formats = roadtwin_core.hookimpl(lambda register: [register(YoloBoxes()),
+                                                                                      register(FakeMmseg())])
+    pm = PluginManager(load_entry_points=False)
+    for plugin, name in ((roadtwin_defects, "defects"), (roadtwin_warp_render, "warp_render"), (mod, "yolo")):
+        pm.register(plugin, name=name)
+    out = tmp_path / "out"
+    run_render(road, out, pm=pm, frames=4, size="160x100", views="defects:1.0", formats="coco,yolo_boxes,mmseg",
+               executor="serial", seed=3)
+    meta = json.loads((out / "meta.json").read_text())
+    assert {i["type"] for i in meta["instances"]} <= set((out / "yolo/classes.txt").read_text().split())  # finish() ran
+    boxes = 0
+    for f in meta["frames"]:
+        inst = cv2.imread(str(out / f["files"]["instance"]), cv2.IMREAD_UNCHANGED)
+        lines = (out / f["files"]["yolo_boxes"]).read_text().splitlines()
+        assert f["yolo_boxes"] == len(lines) == len([i for i in np.unique(inst) if i > 0])
+        for line in lines:
+            _, cx, cy, w, h = map(float, line.split())
+            x0, x1 = (cx - w / 2) * 160, (cx + w / 2) * 160
+            y0, y1 = (cy - h / 2) * 100, (cy + h / 2) * 100
+            inside = np.zeros(inst.shape, bool)
+            inside[int(round(y0)):int(round(y1)), int(round(x0)):int(round(x1))] = True
+            ids = set(np.unique(inst[inside])) - {0}
+            assert ids, line                                 # the box holds an instance ...
+            assert any((inst[~inside] == i).sum() == 0 for i in ids), line  # ... all of its pixels
+            boxes += 1
+        # the core's mmseg writer, not the plugin's same-named format
+        assert f["files"]["semantic"].startswith("mmseg/ann_dir/")
+    assert boxes >= 2                                        # every frame aims at a defect
+    with pytest.raises(RoadtwinError, match="unknown format 'yolo' .*yolo_boxes"):
+        run_render(road, tmp_path / "o2", pm=pm, frames=1, size="80x50", formats="yolo", executor="serial")

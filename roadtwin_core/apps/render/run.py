@@ -44,7 +44,7 @@ from ...params import check_params, cli_params
 from .cameras import CameraPlan, ego_lane_points, plan_cameras, with_ego_lanes
 from .options import MAX_FRAMES, Rig, check_range, check_rig, parse_size, parse_views, resolve_rig
 from .pipeline import FrameJob, RenderContext, forget, render_chunk
-from .writers import DatasetWriter, parse_formats
+from .writers import DatasetWriter, available_formats, parse_formats
 
 __all__ = ["Progress", "defect_statistics", "run_render"]
 
@@ -106,7 +106,8 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     plan = plan_cameras(stage, town, lanes, ground, r, Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg),
                         frames=frames, poses=poses, view_kind=view_kind, share=share, background=background,
                         seed=seed, min_clearance_m=params.min_clearance_m)
-    fmt = parse_formats(formats, plan.stereo)
+    known_formats = available_formats(pm.registry("dataset_formats"))
+    fmt = parse_formats(formats, plan.stereo, known_formats)
     if cmap is not None and cmap.ego:
         plan = with_ego_lanes(plan, lanes, lane_width)
         lane_xy = ego_lane_points(plan)
@@ -123,7 +124,8 @@ def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str
     classes = list(cmap.classes) if cmap is not None else mesh.classes
     with atomic_output_dir(out) as tmp:
         writer = DatasetWriter(tmp, fmt, plan.intrinsics, classes, mesh.instances,
-                               plan.baseline_m if plan.stereo else None, categories=mesh.defect_types)
+                               plan.baseline_m if plan.stereo else None, categories=mesh.defect_types,
+                               available=known_formats)
         shares, backend_used, device_used = _render_frames(runner, ctx, jobs, writer, workers, progress)
         t_frames = time.perf_counter()
         n_events = drive.write(writer, progress) if drive is not None else 0

@@ -53,6 +53,7 @@ class DatasetWriter:
     preview_frames: int = 6
     categories: list[str] = field(default_factory=list)   # COCO categories (defect types), ids 1..
     info: dict = field(default_factory=dict)
+    available: dict | None = None        # registry.available_formats(...) (default: the core's formats)
 
     def __post_init__(self) -> None:
         self.root = Path(self.root)
@@ -65,7 +66,7 @@ class DatasetWriter:
         (self.root / "images").mkdir(parents=True, exist_ok=True)
         if self.baseline:
             (self.root / "images_right").mkdir(parents=True, exist_ok=True)
-        self.writers = [writer(self) for name, writer in WRITERS.items() if name in self.formats]
+        self.writers = [writer(self) for name, writer in (self.available or WRITERS).items() if name in self.formats]
 
     def _write_view(self, folder: str, stem: str, rgb8: np.ndarray, image_bytes: bytes | None) -> str:
         """One camera's image: the JPEG bytes a sensor model encoded, else ``rgb8`` as PNG; returns
