@@ -12,15 +12,17 @@ import contextlib
 import os
 import sys
 import tempfile
+from typing import Callable
 
-__all__ = ["CUDA_DRIVER_NOTICE", "start_warp", "without_cuda_driver_notice"]
+__all__ = ["CUDA_DRIVER_NOTICE", "filtered_stderr", "start_warp", "warp_device", "without_cuda_driver_notice"]
 
 CUDA_DRIVER_NOTICE = "Could not find or load the NVIDIA CUDA driver"
 
 
 @contextlib.contextmanager
-def without_cuda_driver_notice():
-    """Drop warp's "no CUDA driver" notice, pass on everything else written to stderr meanwhile."""
+def filtered_stderr(keep: Callable[[str], bool]):
+    """What is written to file descriptor 2 meanwhile (native libraries included) is held back,
+    then passed on line by line where ``keep(line)``; ``keep`` is asked after the block ran."""
     sys.stderr.flush()
     saved = os.dup(2)
     with tempfile.TemporaryFile() as caught:
@@ -32,11 +34,29 @@ def without_cuda_driver_notice():
             os.dup2(saved, 2)
             os.close(saved)
             caught.seek(0)
-            kept = [line for line in caught.read().decode(errors="replace").splitlines(keepends=True)
-                    if CUDA_DRIVER_NOTICE not in line]
+            kept = [line for line in caught.read().decode(errors="replace").splitlines(keepends=True) if keep(line)]
             if kept:
                 sys.stderr.write("".join(kept))
                 sys.stderr.flush()
+
+
+def without_cuda_driver_notice():
+    """Drop warp's "no CUDA driver" notice, pass on everything else written to stderr meanwhile."""
+    return filtered_stderr(lambda line: CUDA_DRIVER_NOTICE not in line)
+
+
+def warp_device(name: str | None = None):
+    """``warp.get_device(name)``. A device this machine lacks raises warp's own exception, whose
+    message says why; the native "Warp CUDA error ..." lines warp prints while it looks are
+    dropped then, so a command can report it in one line."""
+    wp = start_warp()
+    failed = []
+    with filtered_stderr(lambda line: not (failed and line.startswith("Warp CUDA error"))):
+        try:
+            return wp.get_device(name)
+        except Exception as exc:
+            failed.append(exc)
+            raise
 
 
 def start_warp():

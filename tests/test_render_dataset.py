@@ -431,6 +431,26 @@ def test_bad_rig_through_the_real_command_is_exit_2_and_one_line(road, tmp_path)
     assert len(lines) == 1 and "drone" in lines[0], res.stderr
 
 
+def _has_cuda() -> bool:
+    from roadtwin_core.warp_runtime import start_warp
+
+    return start_warp().get_cuda_device_count() > 0
+
+
+def test_asking_for_a_missing_gpu_is_one_line(road, tmp_path):
+    """`--device cuda` where there is none: exit 2 and one line naming the device, not warp's
+    native CUDA error lines before it."""
+    if _has_cuda():
+        pytest.skip("this machine has a CUDA device")
+    res = subprocess.run([sys.executable, "-m", "roadtwin_core.cli", "render", str(road), "-o", str(tmp_path / "o"),
+                          "--frames", "1", "--size", "80x50", "--backend", "warp", "--device", "cuda"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and "no device 'cuda'" in lines[0], res.stderr
+    assert not (tmp_path / "o").exists()
+
+
 def test_rendering_on_a_machine_without_cuda_prints_no_driver_notice(road, tmp_path):
     """warp's native library announces a missing NVIDIA driver on stderr at start-up; the CPU is
     the intended device there, so a user must not see it (nor a wrapper parse it as an error)."""

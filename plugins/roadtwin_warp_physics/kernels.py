@@ -54,7 +54,7 @@ import numpy as np
 import warp as wp
 
 from roadtwin_core.vehicle import resample_path, resampled_path_at
-from roadtwin_core.warp_runtime import start_warp
+from roadtwin_core.warp_runtime import warp_device
 
 GRAVITY = 9.81
 
@@ -812,8 +812,7 @@ class VehicleSim:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, device: str = "cpu",
                  bvh_constructor: str | None = "sah") -> None:
-        start_warp()
-        self.device = wp.get_device(device)
+        self.device = warp_device(device)
         v = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
         f = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1)
         if len(f) == 0:

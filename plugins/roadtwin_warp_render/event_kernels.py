@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from roadtwin_core.warp_runtime import start_warp
+from roadtwin_core.warp_runtime import warp_device
 
 wp.set_module_options({"enable_backward": False})
 
@@ -174,8 +174,7 @@ class WarpEventSimulator:
             raise ValueError(f"event camera size must be positive, got {width}x{height}")
         if not threshold > 0 or sigma < 0 or refractory_s < 0 or not eps > 0:
             raise ValueError("event camera: threshold and eps must be > 0, sigma and refractory >= 0")
-        start_warp()
-        self.device = wp.get_device(device)
+        self.device = warp_device(device)
         self.width, self.height = int(width), int(height)
         self.threshold, self.sigma, self.refractory_s, self.eps = threshold, sigma, refractory_s, eps
         rng = np.random.default_rng(seed)    # the reference's draws, in its order

@@ -19,6 +19,7 @@ from typing import Iterable, Iterator, Sequence
 import numpy as np
 
 from roadtwin_core import RoadtwinError, check_params
+from roadtwin_core.warp_runtime import warp_device
 from roadtwin_core.render import (Camera, Frame, RenderMesh, RenderParams, StereoCamera, WEATHERS,
                                   build_render_mesh)
 
@@ -58,9 +59,8 @@ class WarpRenderer:
         params = check_params(params or RenderParams(), "renderer warp")
         mesh = scene if isinstance(scene, RenderMesh) else build_render_mesh(scene)
         rc = _rc()
-        wp = rc.wp
         try:
-            device = str(wp.get_device(params.device))
+            device = str(warp_device(params.device))
         except Exception as exc:
             raise RoadtwinError(f"renderer warp: no device {params.device!r} ({exc})") from None
         backend = params.backend
