@@ -224,8 +224,9 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
         for m in models:
             write_defect_asset(m, tmp / "library" / f"{m.name}.usda")
             library_files[m.name] = f"./library/{m.name}.usda"
+        merger_values = effective_merger_params(merger_impl)
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
-                "merger": rules.merger, "mergerParams": merger_params_json(merger_impl),
+                "merger": rules.merger, "mergerParams": json.dumps(merger_values, sort_keys=True),
                 "defectCount": len(placements)}
         materials = textures.collect(tmp / "textures")
         t_textures = time.perf_counter()
@@ -251,7 +252,7 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
                            {"place_s": t_place - t0, "merge_s": t_merge - t_place, "markings_s": t_markings - t_merge,
                             "textures_s": t_textures - t_markings, "write_s": t_written - t_textures,
                             "validate_s": t_write - t_written})
-        summary["merger_params"] = json.loads(info["mergerParams"])
+        summary["merger_params"] = merger_values
         summary["markings"] = len(markings)
         summary["materials"] = len(materials)
         if previewer is not None:
@@ -273,12 +274,11 @@ def _stop_helper_on_failure(previewer: _HereOrThere | None):
         raise
 
 
-def merger_params_json(merger_impl) -> str:
-    """The merger's effective parameters (defaults and ``--param`` values) as sorted JSON: the
-    stage records what made it, so a run with other values can be told apart and repeated."""
+def effective_merger_params(merger_impl) -> dict:
+    """The merger's effective parameters (defaults and ``--param`` values): the stage and the
+    summary record what made the town, so a run with other values can be told apart and repeated."""
     params = getattr(merger_impl, "params", None)
-    values = dataclasses.asdict(params) if dataclasses.is_dataclass(params) and not isinstance(params, type) else {}
-    return json.dumps(values, sort_keys=True)
+    return dataclasses.asdict(params) if dataclasses.is_dataclass(params) and not isinstance(params, type) else {}
 
 
 def _merge_segment(context, item):

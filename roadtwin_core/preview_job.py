@@ -14,8 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .warp_runtime import without_cuda_driver_notice
-
 __all__ = ["warm_up_renderer", "render_preview"]
 
 PREVIEW_RENDERER = "warp"
@@ -71,8 +69,7 @@ def warm_up_renderer(plugins: tuple[str, ...] | None = None) -> float:
                         ["pothole"], "warm-up")
     camera = Camera(Intrinsics.from_fov(16, 12, 75.0), look_from((0.0, 0.0, 2.0), 0.0, -0.5))
     try:
-        with without_cuda_driver_notice():          # warp starts up in this first frame
-            next(iter(renderer.render(square, [camera], RenderParams(backend=PREVIEW_RENDERER))))
+        next(iter(renderer.render(square, [camera], RenderParams(backend=PREVIEW_RENDERER))))
     except ImportError:                              # plugin loaded, engine (warp) missing
         return 0.0
     return time.perf_counter() - t0

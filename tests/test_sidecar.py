@@ -109,7 +109,7 @@ def test_a_helper_told_to_end_still_hands_over_its_results(tmp_path):
 
 
 def test_only_warps_no_cuda_driver_notice_is_dropped(capfd):
-    from roadtwin_core.preview_job import without_cuda_driver_notice
+    from roadtwin_core.warp_runtime import without_cuda_driver_notice
 
     with without_cuda_driver_notice():
         os.write(2, b"Warp CUDA warning: Could not find or load the NVIDIA CUDA driver. GPU execution will not be "

@@ -19,15 +19,13 @@ from typing import Iterable, Iterator, Sequence
 import numpy as np
 
 from roadtwin_core import RoadtwinError, check_params
-from roadtwin_core.warp_runtime import warp_device
+from roadtwin_core.warp_runtime import start_warp, warp_device
 from roadtwin_core.render import (Camera, Frame, RenderMesh, RenderParams, StereoCamera, WEATHERS,
                                   build_render_mesh)
 
 
 def _rc():
     """The kernels module, warp started quietly (no banner, module-load lines or CUDA notice)."""
-    from roadtwin_core.warp_runtime import start_warp
-
     start_warp()
     from . import raycast
 
