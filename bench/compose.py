@@ -1,6 +1,6 @@
 """Compose benchmark: wall time, peak memory and the place / merge / write split.
 
-For each defect count, one fresh Python process composes the layout (``roadtwin_core.compose``,
+For each defect count, one fresh Python process composes the layout (``roadtwin_core.apps.compose.run``,
 the function behind ``roadtwin compose``) into a temporary directory and reports its own peak
 RSS (``ru_maxrss``; ``worker_MB`` is the largest merge worker process, when the merge runs in a
 process pool), so every figure belongs to that run alone. The wall time is the whole child
@@ -32,7 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 CHILD = r"""
 import json, resource, sys, time
 from roadtwin_core import RoadtwinError
-from roadtwin_core.compose import compose
+from roadtwin_core.apps.compose.run import compose
 layout, out, n, seed, surface, preview, extra = sys.argv[1:8]
 kwargs = json.loads(extra)  # executor / workers, only when asked for
 t0 = time.perf_counter()

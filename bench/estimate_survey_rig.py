@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from roadtwin_core.datasets import find_pairs, read_label
+from roadtwin_core.datasets.folders import find_pairs, read_label
 
 def _default_data() -> str:
     """../shared/data/road_defects_br/train beside the checkout (or beside any parent folder)."""

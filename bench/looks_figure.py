@@ -47,9 +47,9 @@ def main() -> None:
 
     from PIL import Image
 
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
     from roadtwin_core.plugins import get_plugin_manager
-    from roadtwin_core.preview import render_view
+    from roadtwin_core.apps.compose.preview import render_view
     from roadtwin_core.render import build_render_mesh
     from roadtwin_core.usd.town_reader import load_town
 

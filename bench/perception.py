@@ -62,7 +62,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run from a checkout, not installed
 
-from roadtwin_core.datasets import find_pairs, load_folder, read_sample  # noqa: E402
+from roadtwin_core.datasets.folders import find_pairs, load_folder, read_sample  # noqa: E402
 from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 CLASSES = ("background", "ego_lane", "crack", "pothole")

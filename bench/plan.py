@@ -20,8 +20,8 @@ from pathlib import Path
 from rich.console import Console
 
 from roadtwin_core.apps.plan.report import comparison_table
-from roadtwin_core.compose import compose
-from roadtwin_core.grid import rasterize_scene
+from roadtwin_core.apps.compose.run import compose
+from roadtwin_core.planning.grid import rasterize_scene
 from roadtwin_core.planning import parse_pose, plan_path, polyline_length, reference_path
 from roadtwin_core.plugins import get_plugin_manager
 from roadtwin_core.usd.town_reader import load_town

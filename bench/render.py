@@ -39,7 +39,7 @@ REPO = HERE.parent
 def prepare(out: Path, stage: Path | None, poses: int, seed: int, ev_frames: int) -> None:
     """Compose the sample town (unless a stage is given) and save what the timed part needs."""
     from roadtwin_core import get_plugin_manager
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
     from roadtwin_core.render import GroundSampler, build_render_mesh, lane_trajectory, sample_lane_poses, stage_lanes
     from roadtwin_core.usd import load_town
 

@@ -11,7 +11,7 @@ from pxr import Usd
 from typer.testing import CliRunner
 
 from roadtwin_core import PluginManager
-from roadtwin_core.cli_library import add_asset, library_app
+from roadtwin_core.cli.library import add_asset, library_app
 from roadtwin_core.usd import read_defect_asset, write_defect_asset
 
 runner = CliRunner()

@@ -7,7 +7,7 @@ import triangle
 from pxr import Usd
 
 from roadtwin_core import ComposeRules, DefectModel, RoadSegment, RoadtwinError, TownLayout
-from roadtwin_core.compose import compose
+from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.usd import write_defect_asset, write_layout
 
 

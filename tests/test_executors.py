@@ -6,7 +6,7 @@ import pytest
 import triangle
 
 from roadtwin_core import ComposeRules, RoadSegment, RoadtwinError, TownLayout
-from roadtwin_core.compose import compose
+from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.executors import LocalExecutor, SerialExecutor, make_executor
 from roadtwin_core.usd import write_layout
 

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from pxr import Ar, Gf, Sdf, Usd, UsdGeom, UsdSemantics, UsdShade, Vt
 
 from roadtwin_core import RoadtwinError, get_plugin_manager
-from roadtwin_core.compose import compose
+from roadtwin_core.apps.compose.run import compose
 
 ROOT = Path(__file__).resolve().parents[1]
 ROADTWIN = Path(sys.executable).with_name("roadtwin")

@@ -35,7 +35,7 @@ def _plane_depth(k: dict, cam_to_world: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     from roadtwin_core.apps.render import run_render
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
     from roadtwin_core.usd import write_layout
 
     base = tmp_path_factory.mktemp("fake")

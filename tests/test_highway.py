@@ -116,7 +116,7 @@ def test_markings_centre_and_edge_lines(layout):
 
 
 def test_rules_are_dense_and_favour_potholes_and_cracks(layout, hw):
-    from roadtwin_core.placement import lane_length_km
+    from roadtwin_core.town.placement import lane_length_km
     from roadtwin_core.usd import read_layout
 
     r = layout.rules
@@ -136,7 +136,7 @@ def test_highway_composes_in_about_a_minute(tmp_path, layout):
     """Compose with the types this checkout has (patch lands with the looks work). Measured in
     CPU seconds of one serial process, so a busy machine does not fail it (about 50 s on two
     idle cores with the process pool, wall clock)."""
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
     from roadtwin_core.plugins import get_plugin_manager
     from roadtwin_core.usd import write_layout
 

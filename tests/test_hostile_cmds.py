@@ -231,7 +231,7 @@ def corpus(tmp_path_factory):
     """The corpus folder (its path has a space and non-ASCII characters) and a composed town."""
     import functools
 
-    import roadtwin_core.compose as compose_mod
+    import roadtwin_core.apps.compose.run as compose_mod
     from roadtwin_core.looks import write_textures
 
     base = tmp_path_factory.mktemp("hostile")

@@ -329,7 +329,7 @@ def test_compose_reference_cycle_real_process(tmp_path, layout):
 # ----------------------------------------------------------------------------------------- export
 @pytest.fixture(scope="module")
 def town(tmp_path_factory, layout) -> Path:
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
 
     out = tmp_path_factory.mktemp("crgtown") / "town"
     return compose(layout, out, defects=2, seed=3, preview=False, surface="flat", executor="serial").town

@@ -191,7 +191,7 @@ def test_cli_reconstruct_surface(monkeypatch, saved, tmp_path):
     from typer.testing import CliRunner
 
     from roadtwin_core import plugins as plugins_mod
-    from roadtwin_core.cli_reconstruct import reconstruct_app
+    from roadtwin_core.cli.reconstruct import reconstruct_app
 
     pm = PluginManager(load_entry_points=False)
     pm.register(rl, name="lidar")
@@ -336,7 +336,7 @@ def test_cli_reconstruct_surface_masks(monkeypatch, curb_scene, tmp_path):
     from typer.testing import CliRunner
 
     from roadtwin_core import plugins as plugins_mod
-    from roadtwin_core.cli_reconstruct import reconstruct_app
+    from roadtwin_core.cli.reconstruct import reconstruct_app
 
     pm = PluginManager(load_entry_points=False)
     pm.register(rl, name="lidar")

@@ -18,10 +18,10 @@ import shapely
 import triangle
 from pxr import Kind, Usd, UsdGeom, UsdSemantics, UsdShade
 
-import roadtwin_core.compose as compose_module
+import roadtwin_core.apps.compose.run as compose_module
 from roadtwin_core import ComposeRules, FixedDefect, LaneMarking, MergedSegment, RoadSegment, TownLayout
 from roadtwin_core.looks import ROAD_MATERIAL_VARIANTS, ST_TILE_M, MaterialSpec, write_textures
-from roadtwin_core.markings import build_markings
+from roadtwin_core.town.markings import build_markings
 from roadtwin_core.usd import read_layout, validate_stage, write_layout
 
 ROOT = "/Town"

@@ -277,7 +277,7 @@ def test_bad_files(tmp_path):
 # ----------------------------------------------------------------------------------------- exporter
 @pytest.fixture(scope="module")
 def town(tmp_path_factory) -> Path:
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
 
     out = tmp_path_factory.mktemp("crgtown") / "town"
     return compose(ROOT / "stages/town.usda", out, defects=8, seed=3, preview=False, surface="flat").town
@@ -349,7 +349,7 @@ def test_export_errors(tmp_path):
 def arc_town(tmp_path_factory) -> Path:
     """A one-lane 60 degree arc (radius 30 m, 3.5 m wide) on an ISO 8608 class C road."""
     from roadtwin_core import RoadSegment, TownLayout
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
     from roadtwin_core.usd import write_layout
 
     r0, w = 30.0, 3.5

@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from roadtwin_core import RoadtwinError
-from roadtwin_core.datasets import find_pairs, load_folder, read_label
+from roadtwin_core.datasets.folders import find_pairs, load_folder, read_label
 from roadtwin_core.render.classmap import builtin_class_maps, load_class_map, parse_class_map
 from roadtwin_core.render.scene import class_names
 
@@ -149,7 +149,7 @@ def test_dataset_folder_reads_both_layouts(tmp_path):
     real = find_pairs(TINY / "train")
     assert len(real) == 4 and all(p.image.suffix == ".jpg" for p in real)
     torch = pytest.importorskip("torch")
-    from roadtwin_core.datasets import SegmentationFolder
+    from roadtwin_core.datasets.folders import SegmentationFolder
 
     item = SegmentationFolder(TINY / "val", 4)[1]
     ref = np.asarray(Image.open(sorted((TINY / "val/labels").glob("*.png"))[1]))

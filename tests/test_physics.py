@@ -315,7 +315,7 @@ def test_pybullet_mesh_chunks_and_static_rest(flat):
 # ----------------------------------------------------------------------------- the command
 @pytest.fixture
 def cli(pm, monkeypatch):
-    from roadtwin_core.cli_sweep import sweep
+    from roadtwin_core.cli.sweep import sweep
 
     monkeypatch.setattr(plugins_mod, "_manager", pm)
     app = typer.Typer()
@@ -376,7 +376,7 @@ def write_town_layout(path):
 
 
 def test_cli_sweep_on_a_town(cli, tmp_path):
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
     from roadtwin_core.usd import load_town
     from roadtwin_core.vehicle import town_scenario
 

@@ -19,8 +19,8 @@ import typer
 from typer.testing import CliRunner
 
 from roadtwin_core import RoadtwinError
-from roadtwin_core.cli_plan import plan
-from roadtwin_core.grid import GridMap, rasterize, rasterize_scene
+from roadtwin_core.cli.plan import plan
+from roadtwin_core.planning.grid import GridMap, rasterize, rasterize_scene
 from roadtwin_core.planning import (CollisionChecker, Footprint, parse_pose, path_metrics, plan_path, reference_path,
                                     transform)
 from roadtwin_core.plugins import get_plugin_manager

@@ -567,7 +567,7 @@ def test_compose_merger_param_reaches_a_copy_of_the_merger(tmp_path):
 
     from roadtwin_cdt import CDTMerger
 
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
 
     seen = []
 

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from roadtwin_core.preview import choose_spot, fill_triangles, rasterize_map
+from roadtwin_core.apps.compose.preview import choose_spot, fill_triangles, rasterize_map
 from roadtwin_core.render import Lane, RenderMesh, class_names
 
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from roadtwin_core.compose import compose
+from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.plugins import get_plugin_manager
-from roadtwin_core.preview_scene import PREVIEW_TEXELS
+from roadtwin_core.apps.compose.preview_scene import PREVIEW_TEXELS
 from roadtwin_core.render import build_render_mesh
 from roadtwin_core.usd.town_reader import load_town
 
@@ -20,7 +20,7 @@ mip_levels = pytest.importorskip("roadtwin_warp_render.raycast").mip_levels
 
 @pytest.fixture(scope="module")
 def composed(tmp_path_factory):
-    import roadtwin_core.preview as preview
+    import roadtwin_core.apps.compose.preview as preview
 
     captured = {}
     real = preview.write_preview
@@ -93,7 +93,7 @@ def test_view_wedge_keeps_everything_the_camera_sees(composed):
     as the whole town from that camera (the renderer, warp backend, on both meshes)."""
     from roadtwin_warp_render.renderer import WarpRenderer
 
-    from roadtwin_core.preview import AHEAD_M, RENDER_HFOV_DEG, RENDER_SIZE, choose_spot, view_half_angle
+    from roadtwin_core.apps.compose.preview import AHEAD_M, RENDER_HFOV_DEG, RENDER_SIZE, choose_spot, view_half_angle
     from roadtwin_core.render import Camera, Intrinsics, RenderParams, look_from
 
     res, town = composed

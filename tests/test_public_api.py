@@ -74,9 +74,9 @@ def test_allowlist_is_current():
 def test_the_checker_sees_private_imports(tmp_path):
     """The parser finds module-level, function-local, dotted and plain imports alike."""
     f = tmp_path / "p.py"
-    f.write_text("import numpy\nfrom roadtwin_core import field\nimport roadtwin_core.grid\n"
+    f.write_text("import numpy\nfrom roadtwin_core import field\nimport roadtwin_core.planning.grid\n"
                  "def g():\n    from roadtwin_core.usd.stage import read_mesh\n    from . import x\n")
-    assert sorted(core_imports_of(f)) == [("roadtwin_core", "field"), ("roadtwin_core.grid", ""),
+    assert sorted(core_imports_of(f)) == [("roadtwin_core", "field"), ("roadtwin_core.planning.grid", ""),
                                           ("roadtwin_core.usd.stage", "read_mesh")]
 
 

@@ -25,7 +25,7 @@ import roadtwin_warp_render
 from roadtwin_core import PluginManager, RoadtwinError
 from roadtwin_core.apps.render import parse_size, run_render
 from roadtwin_core.apps.render.writers import rle_decode, rle_encode
-from roadtwin_core.cli_render import render
+from roadtwin_core.cli.render import render
 from roadtwin_core.render import (Camera, EventSimulator, Intrinsics, RenderParams, StereoCamera, build_render_mesh,
                                   look_from)
 from roadtwin_core.usd.town_reader import TownDefect, TownMesh, TownScene
@@ -310,7 +310,7 @@ def test_rle_roundtrip_and_pycocotools():
 # --------------------------------------------------------------------------- the command on a real town
 @pytest.fixture(scope="module")
 def town_stage(tmp_path_factory):
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
 
     out = tmp_path_factory.mktemp("town") / "town"
     town = compose(ROOT / "stages/town.usda", out, defects=3, surface="flat", preview=False).town
@@ -462,7 +462,7 @@ def test_events_h5_and_torch_dataset(rendered):
     assert len(t) > 0 and set(np.unique(p)) <= {-1, 1}
     assert x.max() < 128 and y.max() < 96 and np.all(np.diff(t) >= 0)
     pytest.importorskip("torch")
-    from roadtwin_core.render.dataset import RenderDataset
+    from roadtwin_core.datasets.render_output import RenderDataset
 
     ds = RenderDataset(rendered)
     item = ds[1]
@@ -471,7 +471,7 @@ def test_events_h5_and_torch_dataset(rendered):
 
 
 def test_dataset_module_imports_torch_lazily():
-    code = "import sys, roadtwin_core.render, roadtwin_core.render.dataset; assert 'torch' not in sys.modules"
+    code = "import sys, roadtwin_core.render, roadtwin_core.datasets.render_output; assert 'torch' not in sys.modules"
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -481,7 +481,7 @@ def test_preview_of_composed_town(town_stage, pm, tmp_path, renderer):
     defect (checked with the renderer's own instance map of that camera)."""
     from PIL import Image
 
-    from roadtwin_core.preview import write_preview
+    from roadtwin_core.apps.compose.preview import write_preview
     from roadtwin_core.usd import load_town
 
     res = write_preview(tmp_path / "p.png", town_stage, pm=pm, title="t")
@@ -500,7 +500,7 @@ def test_preview_of_composed_town(town_stage, pm, tmp_path, renderer):
 def test_preview_without_a_renderer_shows_the_map_alone(town_stage, tmp_path):
     from PIL import Image
 
-    from roadtwin_core.preview import write_preview
+    from roadtwin_core.apps.compose.preview import write_preview
 
     bare = PluginManager(load_entry_points=False)
     bare.register(roadtwin_defects, name="defects")

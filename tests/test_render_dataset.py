@@ -87,7 +87,7 @@ def pm():
 
 @pytest.fixture(scope="module")
 def road(tmp_path_factory, pm):
-    from roadtwin_core.compose import compose
+    from roadtwin_core.apps.compose.run import compose
     from roadtwin_core.usd import write_layout
 
     base = tmp_path_factory.mktemp("road")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from roadtwin_core import RoadtwinError
-from roadtwin_core.grid import GridMap
+from roadtwin_core.planning.grid import GridMap
 from roadtwin_core.apps.plan import decide, defects_on_route, load_recommendations, sweep_vehicle_name
 from roadtwin_core.vehicle import DEFAULT_CAR, paper_car
 from roadtwin_core.apps.sweep.run import dataclass_dict

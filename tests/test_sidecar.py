@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from roadtwin_core import compose as compose_module
+import roadtwin_core.apps.compose.run as compose_module
 from roadtwin_core.errors import RoadtwinError
-from roadtwin_core.sidecar import Sidecar
+from roadtwin_core.apps.compose.sidecar import Sidecar
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -149,7 +149,7 @@ def test_a_dead_helpers_last_line_names_what_happened(tmp_path):
 def test_a_script_without_a_main_guard_can_compose(tmp_path):
     """A spawned helper would run the parent's unguarded script again (multiprocessing's rule)."""
     script = tmp_path / "make_town.py"
-    script.write_text("from roadtwin_core.compose import compose\n"
+    script.write_text("from roadtwin_core.apps.compose.run import compose\n"
                       f"res = compose({str(REPO / 'stages' / 'town.usda')!r}, {str(tmp_path / 'out')!r}, defects=2, seed=1)\n"
                       "print('made', res.town.name)\n")
     run = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300, cwd=tmp_path)

@@ -151,7 +151,7 @@ def test_cli_reconstruct_defects(monkeypatch, tmp_path):
     import typer
 
     from roadtwin_core import plugins as plugins_mod
-    from roadtwin_core.cli_reconstruct import reconstruct_app
+    from roadtwin_core.cli.reconstruct import reconstruct_app
 
     pm = PluginManager(load_entry_points=False)
     pm.register(rs, name="stereo")
@@ -173,7 +173,7 @@ def test_bad_input_files_one_line_nothing_written(monkeypatch, tmp_path):
     from typer.testing import CliRunner
 
     from roadtwin_core import plugins as plugins_mod
-    from roadtwin_core.cli_reconstruct import reconstruct_app
+    from roadtwin_core.cli.reconstruct import reconstruct_app
 
     pm = PluginManager(load_entry_points=False)
     pm.register(rs, name="stereo")

@@ -7,7 +7,7 @@ import triangle
 from pxr import Usd, UsdGeom
 
 from roadtwin_core import ComposeRules, RoadSegment, RoadtwinError, TownLayout, parse_surface
-from roadtwin_core.compose import compose
+from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.usd import new_stage, write_layout
 from roadtwin_core.usd.stage import write_mesh
 

@@ -12,7 +12,7 @@ import triangle
 from pxr import Sdf, Usd, UsdGeom, UsdPhysics
 
 from roadtwin_core import ComposeRules, RoadSegment, TownLayout
-from roadtwin_core.compose import compose
+from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.usd import write_layout
 from roadtwin_core.usd.town_reader import load_town
 

@@ -6,7 +6,7 @@ occlusion mask, and shaded RGB from the materials bound in the stage (UsdPreview
 roughness and normal textures, MIP-mapped), sun and sky with ray-traced shadows, fog, wet road,
 dusk. The kernels live in ``raycast.py``
 and use only numpy and warp, so they are benchmarked without USD (``bench/render.py``).
-``roadtwin render`` (``roadtwin_core.cli_render``) drives it and writes the datasets.
+``roadtwin render`` (``roadtwin_core.cli.render``) drives it and writes the datasets.
 """
 from roadtwin_core import hookimpl
 

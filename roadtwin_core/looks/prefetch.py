@@ -1,6 +1,6 @@
 """Textures made while the town is placed and merged. Generating a texture set costs ~2.5 s of
 one core on a cold cache (a new user's first compose), while placement runs on one core and the
-other idles: the composer's helper process (:class:`~roadtwin_core.sidecar.Sidecar`, a fresh
+other idles: the composer's helper process (:class:`~roadtwin_core.apps.compose.sidecar.Sidecar`, a fresh
 interpreter) writes the set into a staging folder beside the output
 (:func:`~roadtwin_core.atomic.scratch_dir`: a killed run's is removed by the next), and the
 composer moves it next to the stage when it gets there. Same seed, same bytes: the files are exactly what

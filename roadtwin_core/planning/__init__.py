@@ -1,6 +1,6 @@
 """Defect-aware path planning (the paper's decision-making study): footprint, collision, metrics.
 
-Everything here works on a :class:`~roadtwin_core.grid.GridMap`; planners are plugins
+Everything here works on a :class:`~roadtwin_core.planning.grid.GridMap`; planners are plugins
 (``roadtwin_register_planners``) found by name, and use only the names in ``__all__`` and
 ``grid``. The vehicle is :class:`roadtwin_core.vehicle.VehicleParams` (the one vehicle
 description); planning sees it through ``VehicleParams.footprint()``. What ``roadtwin plan``

@@ -7,7 +7,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
-from ..grid import GridMap
+from .grid import GridMap
 from .footprint import WHEEL_NAMES, Footprint, transform, wrap_angle
 
 COLLISION_MODES = ("wheel", "body")

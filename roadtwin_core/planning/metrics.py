@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..grid import GridMap
+from .grid import GridMap
 from .collision import CollisionChecker
 from .footprint import Footprint, transform, wrap_angle
 from .reference import polyline_length, reference_path

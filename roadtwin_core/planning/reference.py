@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
-from ..grid import GridMap
+from .grid import GridMap
 
 
 def drivable_distance(grid: GridMap, xy: Sequence[float], mask: np.ndarray | None = None,

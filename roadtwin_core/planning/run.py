@@ -9,7 +9,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
-from ..grid import GridMap
+from .grid import GridMap
 from .collision import CollisionChecker, check_endpoint
 from .footprint import Footprint, wrap_angle
 from .metrics import PathMetrics, path_metrics

@@ -3,7 +3,7 @@
 render's output. Renderers themselves are plugins (``roadtwin_register_renderers``); what
 ``roadtwin render`` does (frame jobs, dataset writers) is ``roadtwin_core.apps.render``. Nothing
 here imports USD at module level (``stage_lanes`` does, when called) or torch
-(``roadtwin_core.render.dataset`` does, when its class is first used).
+(``roadtwin_core.datasets.render_output`` does, when its class is first used).
 """
 from .cameras import (Camera, Intrinsics, Lane, StereoCamera, lane_trajectory, load_poses_file, look_from,
                       rotation_ypr, sample_lane_poses)

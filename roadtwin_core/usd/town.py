@@ -31,7 +31,7 @@ import numpy as np
 from pxr import Sdf, UsdGeom, UsdPhysics
 
 from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_material, kind_material, marking_material
-from ..markings import MarkingMesh
+from ..town.markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
 from .looks import write_looks
 from .stage import (author_api_over, author_attrs, author_labels, author_mesh_geometry, author_uniform, define_prim, lane_st,

@@ -6,7 +6,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ...grid import GridMap
+from ...planning.grid import GridMap
 from ...planning import Footprint, PlanResult, resample_by_length
 
 COLOURS = {"astar": "tab:blue", "rrtstar": "tab:orange", "lattice": "tab:green", "hybrid_astar": "tab:purple"}

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from ...errors import RoadtwinError
-from ...grid import GridMap
+from ...planning.grid import GridMap
 from ...planning import (COLLISION_MODES, CollisionChecker, PlanFailure, PlanResult, check_endpoint, parse_pose,
                          plan_path, polyline_length, reference_path)
 from ...vehicle import VehicleParams, paper_car
@@ -49,7 +49,7 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
     a sweep that drove another car is refused.
     """
     from ...atomic import atomic_output_dir
-    from ...grid import rasterize_scene
+    from ...planning.grid import rasterize_scene
     from ...plugins import get_plugin_manager
     from ...usd.town_reader import load_town
 
@@ -89,7 +89,7 @@ def plan_stage(stage: str | Path, outdir: str | Path, *, planners: Sequence[str]
 
     with atomic_output_dir(outdir) as tmp:
         if composed:
-            from ...compose import compose
+            from ..compose.run import compose
 
             town = compose(stage, tmp / "town", pm=pm).town
             scene = load_town(town)

@@ -7,7 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
-from ...grid import GridMap
+from ...planning.grid import GridMap
 from ...planning import Footprint, PlanResult, resample_by_length
 from .plots import COLOURS
 

@@ -8,7 +8,7 @@ most defects 5-20 m ahead (markings come into view with the lane); right, the to
 tests, vectorized over the triangles). The sheet is drawn with Pillow: matplotlib's import
 and figure saving cost ~1.5 s of a preview that should take well under one. Given a stage path
 alone, both are read back from the written stage, looks included. The composer instead passes
-the town it holds in memory (:class:`~roadtwin_core.preview_scene.PreviewTown`): the same
+the town it holds in memory (:class:`~roadtwin_core.apps.compose.preview_scene.PreviewTown`): the same
 triangles, labels and st through the writer's own functions, the materials parsed from the
 stage's looks layer (textures at the MIP level the frame needs), and only the road the camera
 can see (its horizontal wedge, within 150 m) in the ray-casting scene (reading Town01 back cost
@@ -25,7 +25,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from .errors import RoadtwinError
+from ...errors import RoadtwinError
 
 AHEAD_M = (5.0, 20.0)       # defects counted this far ahead of the camera ...
 LATERAL_M = 6.0             # ... and at most this far to either side of the lane's line
@@ -147,7 +147,7 @@ def rasterize_map(mesh, width_px: int = 900, max_height_px: int | None = None) -
     elevation in 64 bands, then defect faces red, then lane markings white, on white;
     ``width_px`` wide, or less where ``max_height_px`` would be exceeded (same scale both ways).
     Returns (image, extent (x0, x1, y0, y1) in m, elevation range (lo, hi))."""
-    from .render.scene import MARKING_CLASS
+    from ...render.scene import MARKING_CLASS
 
     v = mesh.vertices
     lo, hi = v[:, :2].min(axis=0) - 1.0, v[:, :2].max(axis=0) + 1.0
@@ -199,8 +199,8 @@ def render_view(town_stage: Path, mesh, pm, lanes=None, view_mesh=None
     (default: read from the stage) and ``view_mesh(spot, half_angle=) -> RenderMesh`` (default:
     ``mesh`` itself; ``half_angle``: :func:`view_half_angle`) let a caller that holds the town in
     memory skip reading the stage back and keep only what the camera can see."""
-    from .render import Camera, GroundSampler, Intrinsics, RenderParams, look_from, stage_lanes, to_srgb8
-    from .render.cameras import vehicle_height
+    from ...render import Camera, GroundSampler, Intrinsics, RenderParams, look_from, stage_lanes, to_srgb8
+    from ...render.cameras import vehicle_height
 
     try:
         renderer = pm.get("renderers", "warp")
@@ -242,15 +242,15 @@ def render_view(town_stage: Path, mesh, pm, lanes=None, view_mesh=None
 def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: int = 100, town=None) -> dict:
     """Write the preview PNG of the composed ``town_stage``; returns what it shows
     (``spot``, ``camera``, ``note`` when the perspective view is missing, timings).
-    ``town``: the :class:`~roadtwin_core.preview_scene.PreviewTown` the composer just wrote
+    ``town``: the :class:`~roadtwin_core.apps.compose.preview_scene.PreviewTown` the composer just wrote
     (meshes in memory, materials read from the stage's looks layer), so nothing is read back.
     The PNG is composed with Pillow (no matplotlib: its import and figure saving took ~1.5 s);
     ``dpi`` is kept for callers and ignored."""
     import time
 
-    from .plugins import get_plugin_manager
-    from .render import build_render_mesh
-    from .usd.town_reader import load_town
+    from ...plugins import get_plugin_manager
+    from ...render import build_render_mesh
+    from ...usd.town_reader import load_town
 
     t0 = time.perf_counter()
     pm = pm or get_plugin_manager()

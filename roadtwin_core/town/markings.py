@@ -28,9 +28,9 @@ import triangle
 from shapely.geometry import LineString, Polygon
 from shapely.ops import substring
 
-from .errors import RoadtwinError
-from .geometry import vertical_ray_hits_pairs
-from .model import LaneMarking, MergedSegment, Placement, RoadSegment
+from ..errors import RoadtwinError
+from ..geometry import vertical_ray_hits_pairs
+from ..model import LaneMarking, MergedSegment, Placement, RoadSegment
 
 LIFT_M = 0.005           # paint floats this far above the road (no z-fighting, no visible gap)
 CUT_MARGIN_M = 0.02      # paint stops this far outside a defect footprint

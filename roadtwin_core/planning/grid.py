@@ -30,7 +30,7 @@ from typing import Any, Iterable
 import numpy as np
 from scipy import ndimage
 
-from .errors import RoadtwinError
+from ..errors import RoadtwinError
 
 DRIVABLE_KINDS = ("driving", "junction")
 MAX_CELLS = 25_000_000
@@ -353,7 +353,7 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
 
 def rasterize(stage, resolution: float = 0.2, kinds: Iterable[str] = DRIVABLE_KINDS) -> GridMap:
     """Grid maps of a composed town: a ``town.usda`` path, its directory, or a loaded TownScene."""
-    from .usd.town_reader import TownScene, load_town
+    from ..usd.town_reader import TownScene, load_town
 
     if not isinstance(stage, TownScene):
         stage = Path(stage)

@@ -1,4 +1,4 @@
-"""The composer's preview as jobs for its helper process (:class:`~roadtwin_core.sidecar.Sidecar`).
+"""The composer's preview as jobs for its helper process (:class:`~roadtwin_core.apps.compose.sidecar.Sidecar`).
 
 Why: the preview (``import warp``, kernel loading, texture decoding, one frame, the map) costs
 more than writing and validating the stage, and needs nothing of them but the looks layer. In
@@ -27,7 +27,7 @@ def _plugins(only=None):
     others' imports cost ~0.7 s of CPU and ~120 MB here), else all."""
     global _PLUGINS
     if _PLUGINS is None:
-        from .plugins import PluginManager
+        from ...plugins import PluginManager
 
         _PLUGINS = PluginManager(only=only)
     return _PLUGINS
@@ -40,7 +40,7 @@ def _import_preview_modules() -> None:
     from pxr import Usd, UsdShade  # noqa: F401
 
     from . import preview, preview_scene  # noqa: F401
-    from .usd import looks_reader, town, town_reader  # noqa: F401
+    from ...usd import looks_reader, town, town_reader  # noqa: F401
 
     preview._font(14), preview._font(12)
 
@@ -49,9 +49,9 @@ def warm_up_renderer(plugins: tuple[str, ...] | None = None) -> float:
     """Seconds spent loading the preview renderer (from the entry points ``plugins``; None: all)
     and rendering a 16 x 12 frame of a textured square. Without a usable renderer this does
     nothing: the preview then says why."""
-    from .errors import RoadtwinError
-    from .render import Camera, Intrinsics, RenderParams, look_from
-    from .render.scene import RenderMaterial, RenderMesh
+    from ...errors import RoadtwinError
+    from ...render import Camera, Intrinsics, RenderParams, look_from
+    from ...render.scene import RenderMaterial, RenderMesh
 
     t0 = time.perf_counter()
     _import_preview_modules()

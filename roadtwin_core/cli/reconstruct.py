@@ -14,10 +14,10 @@ from typing import Optional
 
 import numpy as np
 import typer
-from ._console import console
+from .._console import console
 
-from .errors import RoadtwinError
-from .params import PARAM_HELP, cli_params
+from ..errors import RoadtwinError
+from ..params import PARAM_HELP, cli_params
 
 
 reconstruct_app = typer.Typer(help="Real sensor data -> road surface and defect models.", no_args_is_help=True)
@@ -52,10 +52,10 @@ def reconstruct_defects(
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
 ) -> None:
     """Stereo pair or disparity map -> defect library assets and mask.png."""
-    from .params import make_params
-    from .plugins import get_plugin_manager
+    from ..params import make_params
+    from ..plugins import get_plugin_manager
 
-    from .atomic import output_path
+    from ..atomic import output_path
 
     output_path(out, "dir")
     if disparity is not None and (left is not None or right is not None):
@@ -105,8 +105,8 @@ def reconstruct_surface(
     With --masks, each frame's points are projected into its mask (camera --K, --cam-from-lidar)
     and only those landing on a road pixel are kept; points behind the camera or outside the
     image are dropped, and a frame with no road point left is an error naming it."""
-    from .params import make_params
-    from .plugins import get_plugin_manager
+    from ..params import make_params
+    from ..plugins import get_plugin_manager
 
     for p in [*frames, *([poses] if poses is not None else []), *(masks or []),
               *([cam_from_lidar] if cam_from_lidar is not None else [])]:
@@ -135,7 +135,7 @@ def reconstruct_surface(
     k = _floats(K, (4,), "--K")
     if out.suffix not in (".usda", ".usd", ".usdc"):
         raise RoadtwinError(f"{out}: the surface asset must be a .usda, .usd or .usdc file")
-    from .atomic import output_path
+    from ..atomic import output_path
 
     output_path(out)
     labels = None

@@ -1,7 +1,7 @@
 """A torch ``Dataset`` over a ``roadtwin render`` output directory. torch is imported when the
 class is first used, not when this module (or ``roadtwin_core.render``) is imported::
 
-    from roadtwin_core.render.dataset import RenderDataset   # imports torch here
+    from roadtwin_core.datasets.render_output import RenderDataset   # imports torch here
     ds = RenderDataset("out/render")
     item = ds[0]   # dict of tensors
 

@@ -13,24 +13,24 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .atomic import atomic_output_dir, scratch_dir
-from .errors import RoadtwinError
-from .executors import SerialExecutor, make_executor
-from .looks.prefetch import TexturePrefetch, TexturesNow
-from .markings import build_markings
-from .model import ComposeRules, DefectModel, Placement, TownLayout
-from .contracts import configured
-from .params import apply_params, make_params
-from .placement import lane_length_km, place_defects
+from ...atomic import atomic_output_dir, scratch_dir
+from ...errors import RoadtwinError
+from ...executors import SerialExecutor, make_executor
+from ...looks.prefetch import TexturePrefetch, TexturesNow
+from ...town.markings import build_markings
+from ...model import ComposeRules, DefectModel, Placement, TownLayout
+from ...contracts import configured
+from ...params import apply_params, make_params
+from ...town.placement import lane_length_km, place_defects
 from .preview_job import PREVIEW_RENDERER, render_preview, warm_up_renderer
-from .plugins import PluginManager, get_plugin_manager
-from .remesh import coarsen_defect
+from ...plugins import PluginManager, get_plugin_manager
+from ...remesh import coarsen_defect
 from .sidecar import Sidecar
-from .surface import parse_surface
-from .usd.layout_io import read_layout
-from .usd.library import write_defect_asset
-from .usd.town import TownParts, write_town
-from .usd.validate import validate_stage
+from ...surface import parse_surface
+from ...usd.layout_io import read_layout
+from ...usd.library import write_defect_asset
+from ...usd.town import TownParts, write_town
+from ...usd.validate import validate_stage
 
 Progress = Callable[[str, int, int], None]
 
@@ -68,7 +68,7 @@ def _library_model(context, item) -> DefectModel:
 def add_library_folder(library: dict[str, list[DefectModel]], rules: ComposeRules, folder: Path) -> ComposeRules:
     """Mix the defect assets of a library folder (reconstructed or hand-made models) into the
     parametric ones: each joins its type's pool; a type the rules do not weight gets weight 1."""
-    from .usd.library import read_defect_asset
+    from ...usd.library import read_defect_asset
 
     if not folder.is_dir():
         raise RoadtwinError(f"{folder}: defect library folder not found")
@@ -107,7 +107,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     set, which is otherwise made (or copied from the cache) in a helper process while the town is
     placed and merged.
 
-    The preview has a helper process of its own (:mod:`~roadtwin_core.preview_job`): it loads the
+    The preview has a helper process of its own (:mod:`~roadtwin_core.apps.compose.preview_job`): it loads the
     renderer from the start (on a machine's first run it compiles the renderer's kernels, beside
     the textures' helper instead of after it), and draws on the second core while the stage is
     written and validated. A plugin manager ``pm`` of the caller's cannot travel to another

@@ -12,8 +12,8 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.strtree import STRtree
 
-from .errors import RoadtwinError
-from .model import ComposeRules, DefectModel, Placement, RoadSegment, triangle_areas
+from ..errors import RoadtwinError
+from ..model import ComposeRules, DefectModel, Placement, RoadSegment, triangle_areas
 
 ALONG_TRAVEL = {"rut", "bump"}
 MAX_TRIES = 400

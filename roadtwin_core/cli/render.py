@@ -16,8 +16,8 @@ from typing import Optional
 
 import typer
 
-from ._console import console
-from .params import PARAM_HELP
+from .._console import console
+from ..params import PARAM_HELP
 
 
 def render(
@@ -69,9 +69,9 @@ def render(
     """Render RGB, labels, depth, normals, stereo and events from a composed town."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress as Bar, TextColumn, TimeElapsedColumn
 
-    from ._console import err_console
-    from .apps.render import run_render
-    from .apps.render.report import print_summary
+    from .._console import err_console
+    from ..apps.render import run_render
+    from ..apps.render.report import print_summary
 
     with Bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
              console=err_console, transient=True, disable=not err_console.is_terminal) as bar:
@@ -103,8 +103,8 @@ def rig_add(
     at_s: float = typer.Option(20.0, "--at-s", help="default pose: metres along the stage's first driving lane"),
 ) -> None:
     """Write camera prims for rig presets into layers/cameras.usda (the stage's strongest sublayer)."""
-    from .apps.render.report import print_rig_cameras
-    from .render.rig_usd import add_rig_cameras, read_stage_cameras
+    from ..apps.render.report import print_rig_cameras
+    from ..render.rig_usd import add_rig_cameras, read_stage_cameras
 
     names = [r.strip() for r in rig.split(",") if r.strip()]
     layer = add_rig_cameras(stage, names, at_s=at_s)

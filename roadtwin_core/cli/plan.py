@@ -11,8 +11,8 @@ from typing import Optional
 
 import typer
 
-from .errors import RoadtwinError
-from .params import PARAM_HELP, cli_params
+from ..errors import RoadtwinError
+from ..params import PARAM_HELP, cli_params
 
 MAX_RESOLUTION_M = 2.0
 MAX_COORD_M = 1e7
@@ -36,11 +36,11 @@ def plan(
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"planner {PARAM_HELP} (one --planner)"),
 ) -> None:
     """Plan a path around road defects: grid maps of the stage, planner(s), metrics, plots, USD curve."""
-    from .apps.plan import plan_stage
-    from .apps.plan.report import print_run
-    from .planning import parse_pose
-    from .atomic import output_path
-    from .vehicle import load_full_vehicle, paper_car
+    from ..apps.plan import plan_stage
+    from ..apps.plan.report import print_run
+    from ..planning import parse_pose
+    from ..atomic import output_path
+    from ..vehicle import load_full_vehicle, paper_car
 
     output_path(out, "dir")
     if all_planners and planner is not None:
@@ -68,7 +68,7 @@ def planner_param_values(param: list[str] | None, names: list[str] | None) -> di
     """``--param`` for the one planner run (planners take different parameters), checked now."""
     import dataclasses
 
-    from .plugins import get_plugin_manager
+    from ..plugins import get_plugin_manager
 
     if not param:
         return None

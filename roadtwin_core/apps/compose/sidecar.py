@@ -31,7 +31,7 @@ import traceback
 import types
 from typing import Any, Callable
 
-from .errors import RoadtwinError
+from ...errors import RoadtwinError
 
 __all__ = ["Sidecar"]
 

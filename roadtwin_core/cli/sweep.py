@@ -12,10 +12,10 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from ._console import console, err_console
+from .._console import console, err_console
 
-from .errors import RoadtwinError
-from .params import PARAM_HELP, cli_params
+from ..errors import RoadtwinError
+from ..params import PARAM_HELP, cli_params
 
 _console, _err = console, err_console
 
@@ -45,13 +45,13 @@ def sweep(
 ) -> None:
     """Drive vehicles over defects at several speeds; write g/aw per run, IMU traces, plots and a
     recommended speed per defect."""
-    from .apps.sweep import SweepConfig, parse_offsets, parse_speeds, run_sweep
-    from .apps.sweep.report import print_report
-    from .apps.sweep.setup import load_scenario, sim_params
-    from .atomic import atomic_output_dir
-    from .plugins import get_plugin_manager
-    from .atomic import output_path
-    from .vehicle import VehicleParams, load_full_vehicle
+    from ..apps.sweep import SweepConfig, parse_offsets, parse_speeds, run_sweep
+    from ..apps.sweep.report import print_report
+    from ..apps.sweep.setup import load_scenario, sim_params
+    from ..atomic import atomic_output_dir
+    from ..plugins import get_plugin_manager
+    from ..atomic import output_path
+    from ..vehicle import VehicleParams, load_full_vehicle
 
     output_path(out, "dir")
     if (stage is None) == (surface is None):

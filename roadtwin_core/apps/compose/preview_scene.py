@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .looks.catalog import defect_material, kind_material, marking_material
-from .model import MergedSegment, Placement, TownLayout
+from ...looks.catalog import defect_material, kind_material, marking_material
+from ...model import MergedSegment, Placement, TownLayout
 
 VIEW_RANGE_M = 150.0     # road drawn in the perspective view: this far around the camera ...
 VIEW_BEHIND_M = 5.0      # ... and no more than this behind it (without a view wedge)
@@ -39,7 +39,7 @@ class PreviewTown:
     _geometry: object = field(default=None, init=False, repr=False, compare=False)
 
     def lanes(self):
-        from .render import Lane
+        from ...render import Lane
 
         return [Lane(s.id, np.asarray(s.centerline, float)) for s in self.layout.segments
                 if s.kind == "driving" and s.centerline is not None and len(s.centerline) >= 2]
@@ -49,8 +49,8 @@ class PreviewTown:
         face, material name per face, st-function per face group). Whole segments at a time
         (numpy lookups by face owner), not one array per defect piece: a 10,000-defect town has
         ~12,000 pieces."""
-        from .usd.stage import planar_st
-        from .usd.town import segment_st
+        from ...usd.stage import planar_st
+        from ...usd.town import segment_st
 
         for seg, m, own in zip(self.layout.segments, self.merged, self.owners):
             own = np.asarray(own, dtype=np.int64)
@@ -93,7 +93,7 @@ class PreviewTown:
 
     def _labels(self, g):
         """(classes, defect types, class id per face)."""
-        from .render.scene import class_names
+        from ...render.scene import class_names
 
         dtypes = sorted({p.model.defect_type for p in self.placements})
         classes = class_names(dtypes, [s.kind for s in self.layout.segments])
@@ -104,7 +104,7 @@ class PreviewTown:
 
     def map_mesh(self):
         """The whole town, labelled (no looks: the map colours by elevation and label)."""
-        from .render.scene import DEFAULT_MATERIAL, RenderMesh
+        from ...render.scene import DEFAULT_MATERIAL, RenderMesh
 
         g = self._town()
         classes, dtypes, (p_class, part_class) = self._labels(g)
@@ -122,8 +122,8 @@ class PreviewTown:
         bounding circle (centroid, farthest corner) meets the region, so a large road triangle
         whose corners all lie outside the wedge is still drawn. Parts (segments, markings)
         with any face kept bring all their vertices, in the town's order."""
-        from .render.scene import DEFAULT_MATERIAL, RenderMesh
-        from .usd.stage import planar_st
+        from ...render.scene import DEFAULT_MATERIAL, RenderMesh
+        from ...usd.stage import planar_st
 
         g = self._town()
         c, s = np.cos(spot.heading), np.sin(spot.heading)
@@ -210,7 +210,7 @@ def preview_material(mat, max_texels: int = PREVIEW_TEXELS):
     side is <= ``max_texels``: the renderer's own box pyramid level (2 x 2 means of the
     decoded values), so the view looks as the full material does at that distance, for a
     quarter of the memory per level dropped. Decoded through a 256-entry table (uint8 in)."""
-    from .render.scene import RenderMaterial
+    from ...render.scene import RenderMaterial
 
     diffuse = (_decode_reduced(mat.diffuse_texture, max_texels) if mat.diffuse_texture is not None
                else np.asarray(mat.diffuse_color, np.float32).reshape(1, 1, 3))
@@ -231,8 +231,8 @@ def _decode_reduced(tex, max_texels: int) -> np.ndarray:
     2 x 2 means of the renderer's pyramid)."""
     import cv2
 
-    from .errors import RoadtwinError
-    from .usd.looks_reader import decode_texture, srgb_to_linear
+    from ...errors import RoadtwinError
+    from ...usd.looks_reader import decode_texture, srgb_to_linear
 
     if not tex.path:
         return decode_texture(tex)
@@ -271,7 +271,7 @@ def _stage_materials(looks_layer: Path | None) -> dict:
         return {}
     from pxr import Usd, UsdShade
 
-    from .usd.looks_reader import parse_material
+    from ...usd.looks_reader import parse_material
 
     stage = Usd.Stage.Open(str(looks_layer))
     out = {}

@@ -7,12 +7,12 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from ._console import console, err_console
+from .._console import console, err_console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from .errors import RoadtwinError
-from .params import PARAM_HELP
+from ..errors import RoadtwinError
+from ..params import PARAM_HELP
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="roadtwin: simulation-ready digital twins of roads with their defects, as OpenUSD.")
@@ -32,7 +32,7 @@ def plugins(
                                          help="print the parameters of every registered thing called NAME"),
 ) -> None:
     """List every plugin, its version, what it registered (with descriptions) and any load error."""
-    from .plugins import get_plugin_manager
+    from ..plugins import get_plugin_manager
 
     pm = get_plugin_manager()
     info = pm.load_all()
@@ -52,9 +52,9 @@ def plugins(
 
 def _print_params(pm, name: str) -> None:
     """``roadtwin plugins --params NAME``: each parameter, its type, default, bounds and doc."""
-    from .contracts import params_class
-    from .params import describe_params
-    from .plugins import KINDS
+    from ..contracts import params_class
+    from ..params import describe_params
+    from ..plugins import KINDS
 
     found = [(kind, pm.registry(kind)[name]) for kind in KINDS if name in pm.registry(kind)]
     if not found:
@@ -90,9 +90,9 @@ def compose(
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"merger {PARAM_HELP}"),
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
-    from .compose import compose as run_compose
-    from .params import parse_param_options
-    from .atomic import output_path
+    from ..apps.compose.run import compose as run_compose
+    from ..params import parse_param_options
+    from ..atomic import output_path
 
     output_path(out, "dir")
 
@@ -129,8 +129,8 @@ def compose(
 @app.command()
 def validate(stage: Path = typer.Argument(..., help="USD stage to check")) -> None:
     """Run pxr.UsdValidation on a stage and print the findings; exit 1 on errors."""
-    from .usd.checks import check_stage_meshes, open_stage
-    from .usd.validate import validate_stage
+    from ..usd.checks import check_stage_meshes, open_stage
+    from ..usd.validate import validate_stage
 
     # unreadable, badly composed or malformed input: one line, exit 2 (the findings are for the rest)
     check_stage_meshes(open_stage(stage, default_prim=False), stage)
@@ -150,9 +150,9 @@ def export(
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="output file (default: beside the stage)"),
 ) -> None:
     """Export a composed stage to another tool's format, keeping road and defects apart."""
-    from .atomic import output_path
-    from .plugins import get_plugin_manager
-    from .usd.checks import check_stage_meshes, open_stage
+    from ..atomic import output_path
+    from ..plugins import get_plugin_manager
+    from ..usd.checks import check_stage_meshes, open_stage
 
     exporter = get_plugin_manager().get("exporters", format)
     # unreadable, badly composed or malformed input: one line naming it, exit 2
@@ -172,10 +172,10 @@ def import_layout(
     """Import a foreign road network (e.g. OpenDRIVE) as a roadtwin layout."""
     from pxr import Sdf
 
-    from .params import cli_params
-    from .plugins import get_plugin_manager
-    from .atomic import output_path
-    from .usd.layout_io import write_layout
+    from ..params import cli_params
+    from ..plugins import get_plugin_manager
+    from ..atomic import output_path
+    from ..usd.layout_io import write_layout
 
     imp = get_plugin_manager().get("layout_importers", importer)
     params = cli_params(param, imp.Params, f"layout importer {importer}")
@@ -185,33 +185,33 @@ def import_layout(
         raise RoadtwinError(f"{out}: a layout must be a USD file (.usda, .usd or .usdc)")
     output_path(out)
     layout = imp.load(source, params)
-    from .atomic import atomic_files
+    from ..atomic import atomic_files
 
     with atomic_files(out) as (tmp,):
         write_layout(layout, tmp, f"roadtwin layout imported from {source.name} by {importer}")
     console.print(f"wrote {out}: {len(layout.segments)} segments")
 
 
-from .cli_render import render as _render  # noqa: E402  (subcommands live in their own modules)
+from .render import render as _render  # noqa: E402  (subcommands live in their own modules)
 
 app.command("render")(_render)
-from .cli_render import rig_app as _rig_app  # noqa: E402
+from .render import rig_app as _rig_app  # noqa: E402
 
 app.add_typer(_rig_app, name="rig")
 
-from .cli_plan import plan as _plan  # noqa: E402
+from .plan import plan as _plan  # noqa: E402
 
 app.command("plan")(_plan)
 
-from .cli_sweep import sweep as _sweep  # noqa: E402
+from .sweep import sweep as _sweep  # noqa: E402
 
 app.command("sweep")(_sweep)
 
-from .cli_library import library_app  # noqa: E402
+from .library import library_app  # noqa: E402
 
 app.add_typer(library_app, name="library")
 
-from .cli_reconstruct import reconstruct_app  # noqa: E402
+from .reconstruct import reconstruct_app  # noqa: E402
 
 app.add_typer(reconstruct_app, name="reconstruct")
 

@@ -27,11 +27,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
-from ._console import console, err_console
+from .._console import console, err_console
 from rich.markup import escape
 from rich.table import Table
 
-from .errors import RoadtwinError
+from ..errors import RoadtwinError
 
 library_app = typer.Typer(add_completion=False, no_args_is_help=True,
                           help="A folder of road model library assets (defect models): list, show, add.")
@@ -62,7 +62,7 @@ def read_interface(path: Path) -> dict:
     """Root-prim attributes, labels and payload paths of an asset, geometry not loaded."""
     from pxr import Usd, UsdGeom
 
-    from .usd.checks import open_stage
+    from ..usd.checks import open_stage
 
     stage = open_stage(path, "defect asset", load=Usd.Stage.LoadNone)
     root = stage.GetDefaultPrim()
@@ -140,7 +140,7 @@ def show(
     library: Optional[Path] = typer.Option(None, "-l", "--library", help="library folder (default $ROADTWIN_LIBRARY or ./library)"),
 ) -> None:
     """Print an asset's attributes, labels, extent and geometry summary."""
-    from .usd.library import read_defect_asset
+    from ..usd.library import read_defect_asset
 
     folder = _folder(library)
     try:
@@ -178,7 +178,7 @@ def _payload_files(src: Path, info: dict) -> list[Path]:
 
 def add_asset(src: Path, folder: Path, force: bool = False) -> Path:
     """Validate ``src`` and copy it (with its payloads) into ``folder`` atomically; returns the copy."""
-    from .usd.library import read_defect_asset
+    from ..usd.library import read_defect_asset
 
     src = Path(src)
     if not src.is_file():
@@ -186,7 +186,7 @@ def add_asset(src: Path, folder: Path, force: bool = False) -> Path:
     info = read_interface(src)
     read_defect_asset(src)  # geometry, boundary loop and flags must read too
     payloads = _payload_files(src, info)
-    from .atomic import output_path
+    from ..atomic import output_path
 
     output_path(folder, "dir")
     try:
@@ -199,7 +199,7 @@ def add_asset(src: Path, folder: Path, force: bool = False) -> Path:
     clash = [t for _, t in targets if t.exists()]
     if clash and not force:
         raise RoadtwinError(f"{folder}: {clash[0].name} already exists (use --force to replace it)")
-    from .atomic import atomic_files
+    from ..atomic import atomic_files
 
     replaced = False
     try:

@@ -22,7 +22,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import RoadtwinError
+from ..errors import RoadtwinError
 
 __all__ = ["IGNORE_INDEX", "IMAGE_SUFFIXES", "Sample", "SegmentationFolder", "find_pairs", "load_folder", "read_image",
            "read_label", "read_sample"]
