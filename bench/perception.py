@@ -62,12 +62,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run from a checkout, not installed
 
-from roadtwin_core.datasets.folders import find_pairs, load_folder, read_sample  # noqa: E402
+from roadtwin_core.datasets import IGNORE_INDEX, find_pairs, load_folder, read_sample  # noqa: E402
 from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 CLASSES = ("background", "ego_lane", "crack", "pothole")
 REPORTED = ("pothole", "crack", "ego_lane")
-IGNORE = 255
 MEAN, STD = (0.45, 0.45, 0.45), (0.25, 0.25, 0.25)
 
 
@@ -204,8 +203,8 @@ def seg_loss(logits, target):
     small potholes."""
     torch = _torch()
     F = torch.nn.functional
-    ce = F.cross_entropy(logits, target, ignore_index=IGNORE)
-    valid = (target != IGNORE)
+    ce = F.cross_entropy(logits, target, ignore_index=IGNORE_INDEX)
+    valid = (target != IGNORE_INDEX)
     prob = logits.float().softmax(1) * valid[:, None]
     onehot = F.one_hot(target.clamp(max=logits.shape[1] - 1), logits.shape[1]).permute(0, 3, 1, 2) * valid[:, None]
     inter = (prob * onehot).sum((0, 2, 3))[1:]
@@ -291,7 +290,7 @@ def evaluate(model, data, device, batch: int = 16, keep=()):
             if cuda:
                 x = x.contiguous(memory_format=torch.channels_last)
             pred = model(x).argmax(1)
-            valid = (y != IGNORE)[:, None]
+            valid = (y != IGNORE_INDEX)[:, None]
             p = (pred[:, None] == ks) & valid          # (B, C, H, W)
             t = (y[:, None] == ks) & valid
             inter.append((p & t).sum((2, 3)).cpu())
@@ -543,7 +542,7 @@ def write_plots(summary: dict, grid_npz: Path | None, out: Path) -> list[Path]:
                 else:
                     lab = labels[i] if c == "ground truth" else preds[c][i]
                     col = PALETTE[np.minimum(lab, 3)]
-                    col[lab == IGNORE] = 128
+                    col[lab == IGNORE_INDEX] = 128
                     tile = (0.45 * images[i] + 0.55 * col).astype(np.uint8)
                 sheet.paste(Image.fromarray(tile).resize((tw, th), Image.NEAREST), (j * tw, 16 + i * th))
         sheet.save(out / "grid.png")

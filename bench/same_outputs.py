@@ -59,8 +59,11 @@ def _strip(value):
     return value
 
 
-def fingerprint(path: Path) -> str:
+def fingerprint(path: Path, out: Path) -> str:
+    """sha256 of a file; JSON and CSV with timings dropped and the output folder's and the checkout's paths as ``<OUT>`` and ``<REPO>``."""
     data = path.read_bytes()
+    if path.suffix in (".json", ".csv"):
+        data = data.replace(str(out).encode(), b"<OUT>").replace(str(REPO).encode(), b"<REPO>")
     if path.suffix == ".json":
         data = json.dumps(_strip(json.loads(data)), sort_keys=True).encode()
     elif path.suffix == ".csv":
@@ -71,13 +74,13 @@ def fingerprint(path: Path) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-def run(out: Path) -> None:
+def run(out: Path, rehash: bool = False) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    for args in commands(out):
+    for args in [] if rehash else commands(out):
         print("roadtwin", " ".join(args), flush=True)
         subprocess.run([sys.executable, "-c", "from roadtwin_core.cli import main; main()", *args], check=True,
                        stdout=subprocess.DEVNULL)
-    manifest = {p.relative_to(out).as_posix(): fingerprint(p) for p in sorted(out.rglob("*"))
+    manifest = {p.relative_to(out).as_posix(): fingerprint(p, out) for p in sorted(out.rglob("*"))
                 if p.is_file() and p.name != "manifest.json"}
     (out / "manifest.json").write_text(json.dumps(manifest, indent=1, sort_keys=True))
     print(f"{len(manifest)} files fingerprinted -> {out / 'manifest.json'}")
@@ -99,10 +102,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path, nargs="+", help="output folder (or two with --compare)")
     ap.add_argument("--compare", action="store_true", help="compare the manifests of two output folders")
+    ap.add_argument("--rehash", action="store_true", help="only fingerprint an existing output folder again")
     a = ap.parse_args()
     if a.compare:
         sys.exit(compare(*a.out))
-    run(a.out[0])
+    run(a.out[0], a.rehash)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ The public API, what plugins and users may import, is this module's ``__all__`` 
 
 What each kind of plugin object must provide is in :mod:`roadtwin_core.contracts` (its protocols
 are re-exported here). Every other module is private to the framework and may change without
-notice; ``tests/test_public_api.py`` checks that the plugins keep to this.
+notice; ``tests/core/test_public_api.py`` checks that the plugins keep to this.
 """
 import importlib
 

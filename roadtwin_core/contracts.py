@@ -45,9 +45,15 @@ class Reconstructor(Protocol):
     """Sensor data -> a surface or defect models, in two steps so the CLI can report before writing.
 
     ``produces`` is ``"surface"`` (``roadtwin reconstruct surface``) or ``"defects"``
-    (``roadtwin reconstruct defects``); ``inputs`` is the dict the command builds from its options.
-    The command also sets these ``Params`` fields from its options, so the dataclass declares
-    them: ``voxel_m``, ``radius_m``, ``align`` (surface); ``disparity_scale``, ``grid_m`` (defects).
+    (``roadtwin reconstruct defects``). ``inputs`` is a dict whose keys and checks are
+    :class:`roadtwin_core.apps.reconstruct.SurfaceInputs` and
+    :class:`~roadtwin_core.apps.reconstruct.DefectInputs` (their ``as_dict()`` is what the command
+    passes). The command also sets these ``Params`` fields from its options, so the dataclass
+    declares them: ``voxel_m``, ``radius_m``, ``align`` (surface); ``disparity_scale``, ``grid_m``
+    (defects). Of the result it reads: a surface's ``vertices`` and ``faces`` (a
+    :class:`~roadtwin_core.SurfaceModel`), and ``write`` returning the asset's path; for defects,
+    ``labels`` (per-pixel instance ids, 0 = road) and ``models`` (:class:`~roadtwin_core.DefectModel`:
+    ``name``, ``attributes()``), and ``write`` returning the list of paths written.
     """
 
     name: str

@@ -8,12 +8,14 @@ boundary heights are "pseudo-heights" that become the road surface height when m
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .errors import RoadtwinError
+from .geometry import mesh_outline_polygon
 
 
 def _as_vertices(a: Any, what: str) -> np.ndarray:
@@ -150,8 +152,6 @@ class RoadSegment:
 
     def polygon(self):
         """The segment's outline as a shapely polygon (non-convex and holes allowed); computed once."""
-        from .geometry import mesh_outline_polygon
-
         if self._polygon is None:
             self._polygon = mesh_outline_polygon(self.vertices, self.faces, f"road segment {self.id!r}")
         return self._polygon
@@ -233,8 +233,6 @@ class ComposeRules:
         return dataclasses.replace(self, **changes)
 
     def check(self, owner: str) -> "ComposeRules":
-        import math
-
         if self.defect_count < 0:
             raise RoadtwinError(f"{owner}: defect count must be >= 0, got {self.defect_count}")
         if self.seed < 0:  # numpy's SeedSequence refuses negative seeds

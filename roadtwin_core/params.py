@@ -101,12 +101,6 @@ def apply_params(base: Any, values: dict[str, Any], owner: str) -> Any:
     return check_params(params, owner)
 
 
-def cli_params(items: Sequence[str] | None, base: Any, owner: str) -> Any:
-    """The ``--param KEY=VALUE`` options of a command applied to ``base`` (the plugin's ``Params``
-    class, or the instance the command built from its own options): one checked instance."""
-    return apply_params(base, parse_param_options(items), owner)
-
-
 def describe_params(cls: type | None) -> list[dict[str, Any]]:
     """Field name, type, default and bounds, for `roadtwin plugins` and docs."""
     if cls is None:

@@ -18,11 +18,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+from pxr import Usd, UsdGeom
 from scipy.spatial import cKDTree
 
 from .errors import RoadtwinError
+from .plugins import get_plugin_manager
+from .usd.stage import read_mesh
 
 # ISO 8608 class geometric means Gd(n0), m^3, n0 = 0.1 cycles/m, w = 2.
 ISO8608_GD_N0 = {c: 16e-6 * 4**i for i, c in enumerate("ABCDEFGH")}
@@ -217,8 +221,6 @@ def parse_surface(spec: str, bounds: tuple[float, float, float, float], seed: in
         elif kind == "usd":
             rough = usd_mesh_surface(arg)
         else:
-            from .plugins import get_plugin_manager
-
             sources = get_plugin_manager().registry("surface_sources")
             if kind not in sources:
                 known = ", ".join(["flat, flat:Z, iso8608:CLASS[:DX], usd:PATH"] + [f"{k}:ARG" for k in sorted(sources)])
@@ -232,12 +234,6 @@ def parse_surface(spec: str, bounds: tuple[float, float, float, float], seed: in
 def usd_mesh_surface(path: str) -> SampledSurface:
     """Elevation from a surface asset (e.g. ``roadtwin reconstruct surface`` output): the
     world-space vertices of its meshes, queried through the k-d tree."""
-    from pathlib import Path
-
-    from pxr import Usd, UsdGeom
-
-    from .usd.stage import read_mesh
-
     p = Path(path)
     if not p.exists():
         raise RoadtwinError(f"surface: {path}: no such file")

@@ -4,13 +4,15 @@ A speed cushion is a raised rectangular pad narrower than a lane, so buses and t
 it while cars ride over it: a flat top ``height_m`` high, sloped on/off ramps ``ramp_m`` long
 along travel (+x) and steeper side slopes ``side_m`` wide across it (+y).
 
-To ship it, put this module in a package and declare the entry point in its pyproject.toml::
+The ``pyproject.toml`` beside this file makes it an installable package and declares the entry
+point that roadtwin finds it by::
 
     [project.entry-points.roadtwin]
     speed_cushion = "roadtwin_speed_cushion"
 
-After ``pip install`` it shows up in ``roadtwin plugins`` and can be used by name in a layout's
-``type_weights``. It uses only roadtwin_core's public API plus numpy and triangle.
+After ``pip install ./docs/example_plugin`` it shows up in ``roadtwin plugins`` and a layout can
+weight it by name (``roadtwin:rules:weight:speed_cushion``). It uses only roadtwin_core's public
+API plus numpy and triangle. docs/plugins.md describes every hook a plugin can implement.
 
 Why the mesh is built this way: the surface is piecewise planar (top, two ramps, two sides, with
 diagonal creases at the corners), so its outline, the top's outline and the four corner creases

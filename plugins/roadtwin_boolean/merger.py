@@ -65,12 +65,17 @@ thickness is raised where needed so every fill floor stays inside the slab:
 from __future__ import annotations
 
 from dataclasses import dataclass, field as dc_field
+from typing import NamedTuple
 
+import manifold3d
 import numpy as np
+import shapely
+from scipy.spatial import cKDTree
 from shapely.geometry import Polygon
 
 from roadtwin_core import (ComposeRules, MergedSegment, Placement, RoadSegment, RoadtwinError,
                            SurfaceModel, check_params, field)
+from roadtwin_core.geometry import loops_from_edges
 
 from .solids import boundary_edges, compact, even_segment_mesh, extrude_sheet, outline_mesh, to_manifold
 
@@ -114,11 +119,8 @@ class BooleanMerger:
     # ------------------------------------------------------------------ build
     def build(self, segment: RoadSegment, placements: list[Placement], surface: SurfaceModel,
               rules: ComposeRules, want_solid: bool = True) -> BooleanBuild:
-        import manifold3d
-
         what = f"segment {segment.id!r}"
         t = self.params.thickness_m
-        tol = self.params.tolerance_m
         if not placements:
             v2, faces = even_segment_mesh(segment, rules.road_edge_m)
             zr = surface.height(v2)
@@ -126,21 +128,8 @@ class BooleanMerger:
                 return BooleanBuild(MergedSegment(segment.id, np.column_stack([v2, zr]), faces,
                                                   np.full(len(faces), -1, dtype=np.int64)), None, t)
 
-        # Defect sheets in world XY, heights restored: S = surface + relative z.
         poly = segment.polygon()
-        sheets, loops = [], []
-        for i, p in enumerate(placements):
-            w = p.world_vertices()
-            xy, f, used = compact(w[:, :2], p.model.faces)
-            zs = surface.height(xy)
-            loop = _outer_loop(f)
-            footprint = Polygon(xy[loop])
-            inside = poly.contains(footprint)
-            if not inside and not (poly.intersects(footprint) and poly.intersection(footprint).area > 0.0):
-                sheets.append((i, None, None, None, None, footprint, "dropped"))
-                continue
-            sheets.append((i, xy, f, zs + w[used, 2], zs, footprint, "inside" if inside else "straddles"))
-            loops.append((xy, loop, footprint))
+        sheets, loops = _defect_sheets(poly, placements, surface)
         if placements:
             v2, faces = _road_mesh(segment, poly, rules.road_edge_m, loops if self.params.rim_constraints else [])
             zr = surface.height(v2)
@@ -153,43 +142,10 @@ class BooleanMerger:
         z_lo = min([zr.min()] + [s[4].min() for s in sheets]) - t - 1.0
         z_hi = max([zr.max()] + [s[3].max() for s in sheets]) + 1.0
 
-        # Operands, each with a reserved originalID so output triangles can be traced back.
-        operands: list[tuple[str, int, int, int]] = []  # (kind, placement index, top faces, bottom faces)
-        first_id = manifold3d.Manifold.reserve_ids(2 + 2 * len(sheets))
-
-        def solid_of(kind, idx, xy, f, ztop, zbot, label, top_faces=None, bottom_faces=None):
-            verts, tris, n_top, n_bottom = extrude_sheet(xy, f, ztop, zbot, top_faces, bottom_faces)
-            oid = first_id + len(operands)
-            operands.append((kind, idx, n_top, n_bottom))
-            return to_manifold(verts, tris, oid, tol, f"{what}: {label}")
-
-        slab = solid_of(_SLAB, -1, v2, faces, zr, zr - t, "road slab")
-        fills, cutters = [], []
+        ops = _Operands(what, self.params.tolerance_m, 2 + 2 * len(sheets))
+        slab = ops.solid(_SLAB, -1, v2, faces, zr, zr - t, "road slab")
         clipped = [s[0] for s in sheets if s[6] == "straddles"]
-        seg_prism = None
-        for i, xy, f, ztop, zbase, footprint, where in sheets:
-            label = f"defect {placements[i].instance_id!r}"
-            straddles = where == "straddles"
-            # Cutter: the footprint prism above the defect surface S (removes the road where it
-            # is higher than S). Fill: the footprint from inside the slab up to S + lift, lifted
-            # on interior vertices only (the rim stays at S): it supplies material wherever the
-            # road is lower than S, and its top lies strictly inside the cutter, which then
-            # trims it back to exactly S. No face of one operand coincides with a face of another.
-            cap = outline_mesh(xy, f)
-            cutters.append(solid_of(_CUTTER, i, xy, f, z_hi, ztop, f"{label} cutter", top_faces=cap))
-            interior = np.ones(len(xy), dtype=bool)
-            interior[np.unique(boundary_edges(f))] = False
-            fill_floor = min(ztop.min(), zbase.min()) - 0.25 * t
-            fill = solid_of(_FILL, i, xy, f, ztop + _LIFT_M * interior, fill_floor, f"{label} fill",
-                            bottom_faces=cap)
-            if straddles:
-                if seg_prism is None:
-                    seg_cap = outline_mesh(v2, faces)
-                    seg_prism = solid_of(_SEGPRISM, -1, v2, faces, z_hi, z_lo, "segment prism",
-                                         top_faces=seg_cap, bottom_faces=seg_cap)
-                fill = fill ^ seg_prism
-            fills.append(fill)
-
+        fills, cutters = _defect_solids(ops, sheets, placements, v2, faces, t, z_lo, z_hi)
         solid = slab
         if fills:
             solid = manifold3d.Manifold.batch_boolean([solid] + fills, manifold3d.OpType.Add)
@@ -198,7 +154,7 @@ class BooleanMerger:
         if solid.status() != manifold3d.Error.NoError or solid.is_empty():
             raise RoadtwinError(f"{what}: boolean merge failed ({solid.status()})")
         exact = np.concatenate([np.column_stack([v2, zr])] + [np.column_stack([s[1], s[3]]) for s in sheets])
-        merged = self._top_surface(segment, solid, operands, first_id, surface, t, exact)
+        merged = self._top_surface(segment, solid, ops.operands, ops.first_id, surface, t, exact)
         return BooleanBuild(merged, solid, t, clipped, dropped)
 
     # ------------------------------------------------------------------ extraction
@@ -259,14 +215,91 @@ class BooleanMerger:
         return MergedSegment(segment.id, v[used], faces, owner, ring)
 
 
+class _Sheet(NamedTuple):
+    """One defect in world XY, heights restored (``ztop`` = S = surface + relative z; ``zbase``
+    = the surface under it); ``where``: "inside" the segment, "straddles" its border or
+    "dropped" (no part in it: only ``index`` and ``footprint`` are set)."""
+
+    index: int
+    xy: np.ndarray | None
+    faces: np.ndarray | None
+    ztop: np.ndarray | None
+    zbase: np.ndarray | None
+    footprint: Polygon
+    where: str
+
+
+def _defect_sheets(poly: Polygon, placements: list[Placement], surface: SurfaceModel
+                   ) -> tuple[list[_Sheet], list[tuple[np.ndarray, np.ndarray, Polygon]]]:
+    """Every placement as a sheet, and the footprint loops (xy, loop, footprint) of those that
+    reach into the segment (the rims the road mesh may build in)."""
+    sheets, loops = [], []
+    for i, p in enumerate(placements):
+        w = p.world_vertices()
+        xy, f, used = compact(w[:, :2], p.model.faces)
+        zs = surface.height(xy)
+        loop = _outer_loop(f)
+        footprint = Polygon(xy[loop])
+        inside = poly.contains(footprint)
+        if not inside and not (poly.intersects(footprint) and poly.intersection(footprint).area > 0.0):
+            sheets.append(_Sheet(i, None, None, None, None, footprint, "dropped"))
+            continue
+        sheets.append(_Sheet(i, xy, f, zs + w[used, 2], zs, footprint, "inside" if inside else "straddles"))
+        loops.append((xy, loop, footprint))
+    return sheets, loops
+
+
+class _Operands:
+    """The boolean's operands, each with a reserved originalID so output triangles can be traced
+    back: ``operands[k]`` = (kind, placement index, top faces, bottom faces) of id ``first_id + k``."""
+
+    def __init__(self, what: str, tolerance: float, count: int):
+        self.what, self.tolerance = what, tolerance
+        self.operands: list[tuple[str, int, int, int]] = []
+        self.first_id = manifold3d.Manifold.reserve_ids(count)
+
+    def solid(self, kind, idx, xy, f, ztop, zbot, label, top_faces=None, bottom_faces=None):
+        verts, tris, n_top, n_bottom = extrude_sheet(xy, f, ztop, zbot, top_faces, bottom_faces)
+        oid = self.first_id + len(self.operands)
+        self.operands.append((kind, idx, n_top, n_bottom))
+        return to_manifold(verts, tris, oid, self.tolerance, f"{self.what}: {label}")
+
+
+def _defect_solids(ops: _Operands, sheets: list[_Sheet], placements: list[Placement], v2: np.ndarray,
+                   faces: np.ndarray, t: float, z_lo: float, z_hi: float) -> tuple[list, list]:
+    """Each defect's fill (clipped to the segment's prism where it straddles the border) and cutter."""
+    fills, cutters = [], []
+    seg_prism = None
+    for i, xy, f, ztop, zbase, footprint, where in sheets:
+        label = f"defect {placements[i].instance_id!r}"
+        # Cutter: the footprint prism above the defect surface S (removes the road where it
+        # is higher than S). Fill: the footprint from inside the slab up to S + lift, lifted
+        # on interior vertices only (the rim stays at S): it supplies material wherever the
+        # road is lower than S, and its top lies strictly inside the cutter, which then
+        # trims it back to exactly S. No face of one operand coincides with a face of another.
+        cap = outline_mesh(xy, f)
+        cutters.append(ops.solid(_CUTTER, i, xy, f, z_hi, ztop, f"{label} cutter", top_faces=cap))
+        interior = np.ones(len(xy), dtype=bool)
+        interior[np.unique(boundary_edges(f))] = False
+        fill_floor = min(ztop.min(), zbase.min()) - 0.25 * t
+        fill = ops.solid(_FILL, i, xy, f, ztop + _LIFT_M * interior, fill_floor, f"{label} fill",
+                         bottom_faces=cap)
+        if where == "straddles":
+            if seg_prism is None:
+                seg_cap = outline_mesh(v2, faces)
+                seg_prism = ops.solid(_SEGPRISM, -1, v2, faces, z_hi, z_lo, "segment prism",
+                                      top_faces=seg_cap, bottom_faces=seg_cap)
+            fill = fill ^ seg_prism
+        fills.append(fill)
+    return fills, cutters
+
+
 _SNAP_M = 1e-9  # manifold may return an input vertex recomputed as an intersection, ~1e-12 off
 
 
 def _snap(v: np.ndarray, exact: np.ndarray) -> np.ndarray:
     """Put output vertices within _SNAP_M of an input top vertex (road or defect surface) back
     on that vertex bit-for-bit, so heights and seams match the CDT merger's exactly."""
-    from scipy.spatial import cKDTree
-
     d, j = cKDTree(exact).query(v, distance_upper_bound=_SNAP_M)
     hit = np.isfinite(d)
     out = v.copy()
@@ -337,8 +370,6 @@ def _road_mesh(segment: RoadSegment, poly, edge_m: float, loops) -> tuple[np.nda
     are constraints only where they lie inside the segment (1 um clear of its border) and their
     footprint touches no other footprint; anything Triangle refuses falls back to the plain
     mesh, which is still exact (it only brings the rim steps back on a curved surface)."""
-    import shapely
-
     inner = poly.buffer(-1e-6)
     rims = []
     for k, (xy, loop, footprint) in enumerate(loops):
@@ -364,8 +395,6 @@ def _road_mesh(segment: RoadSegment, poly, edge_m: float, loops) -> tuple[np.nda
 
 def _outer_loop(faces: np.ndarray) -> np.ndarray:
     """The footprint loop of a defect sheet (its longest boundary loop)."""
-    from roadtwin_core.geometry import loops_from_edges
-
     loops = loops_from_edges(boundary_edges(faces))
     return max(loops, key=len)
 

@@ -8,13 +8,13 @@ triangle it was cut from (top, bottom or wall of which solid).
 """
 from __future__ import annotations
 
-
+import manifold3d
 import numpy as np
 import triangle
 from shapely.geometry import Polygon
 
-from roadtwin_core import RoadSegment, RoadtwinError
-from roadtwin_core.geometry import boundary_edges  # noqa: F401  (re-exported for merger.py)
+from roadtwin_core import RoadSegment, RoadtwinError, polygon_area
+from roadtwin_core.geometry import boundary_edges, loops_from_edges  # boundary_edges: re-exported for merger.py
 from roadtwin_core.remesh import even_segment_mesh as _core_even_mesh
 
 
@@ -48,9 +48,6 @@ def outline_mesh(xy: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _hole_seeds(xy: np.ndarray, faces: np.ndarray, edges: np.ndarray) -> list[tuple[float, float]]:
-    from roadtwin_core import polygon_area
-    from roadtwin_core.geometry import loops_from_edges
-
     seeds = []
     for loop in loops_from_edges(edges):
         if polygon_area(xy[loop]) < 0:  # a hole loop runs clockwise around the sheet's hole
@@ -99,8 +96,6 @@ def to_manifold(verts: np.ndarray, tris: np.ndarray, original_id: int, tolerance
     """A manifold3d.Manifold in double precision whose triangles remember where they came from:
     ``face_id`` = input triangle index, one run with the given (reserved) ``originalID``.
     Refuses anything that is not a closed oriented 2-manifold."""
-    import manifold3d
-
     mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(verts, dtype=np.float64),
                              tri_verts=np.ascontiguousarray(tris, dtype=np.uint64),
                              face_id=np.arange(len(tris), dtype=np.uint64),

@@ -1,4 +1,5 @@
-"""The CDT merger (Zhang et al.'s digital road twin generator, steps 2-5 of DESIGN.md).
+"""The CDT merger (Zhang et al.'s digital road twin generator, steps 2-5 of
+docs/architecture.md#the-merger).
 
 Per segment: re-mesh the planar road evenly; project each defect footprint vertically onto it
 and mark covered triangles (batched Möller–Trumbore rays plus a vertex-in-footprint test, both

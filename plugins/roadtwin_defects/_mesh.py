@@ -49,15 +49,6 @@ def resample_closed(points: np.ndarray, spacing: float, phase: float = 0.0) -> n
     return np.column_stack([np.interp(t, s, closed[:, 0]), np.interp(t, s, closed[:, 1])])
 
 
-def resample_open(points: np.ndarray, spacing: float) -> np.ndarray:
-    """Uniform arc-length resampling of an open polyline, keeping both end points."""
-    p = np.asarray(points, dtype=np.float64)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
-    n = max(1, int(round(s[-1] / spacing)))
-    t = np.linspace(0.0, s[-1], n + 1)
-    return np.column_stack([np.interp(t, s, p[:, 0]), np.interp(t, s, p[:, 1])])
-
-
 def densify_closed(loop: np.ndarray, max_spacing: float) -> np.ndarray:
     """Keep every vertex and split longer edges evenly: same shape, so a simple loop stays simple."""
     p = np.asarray(loop, dtype=np.float64)

@@ -29,13 +29,16 @@ and proxy purposes skipped) and keep road and defects apart:
 """
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
+from pxr import Ar
 
 from roadtwin_core import RoadtwinError
-
 from roadtwin_core.atomic import atomic_files
+
 from ._stage import Look, Part, collect_parts, open_stage
 
 # Z-up -> Y-up for glTF, as a row-vector rotation: (x, y, z) -> (x, z, -y).
@@ -70,11 +73,6 @@ def _material(cls: str, color: tuple[int, int, int, int]) -> "PBRMaterial":
 
 def _image(path: str, mode: str):
     """A texture as a PIL image, read through USD's asset resolver (plain files and usdz members)."""
-    import io
-
-    from PIL import Image
-    from pxr import Ar
-
     asset = Ar.GetResolver().OpenAsset(Ar.ResolvedPath(path))
     if asset is None:
         raise RoadtwinError(f"{path}: texture cannot be read")
@@ -84,8 +82,6 @@ def _image(path: str, mode: str):
 def _look_material(look: Look, textured: bool) -> "PBRMaterial":
     """glTF metallic-roughness material from a UsdPreviewSurface look; textures only when the
     part has texture coordinates."""
-    import numpy as np
-    from PIL import Image
     from trimesh.visual.material import PBRMaterial
 
     kw = {"name": look.name, "doubleSided": True, "metallicFactor": look.metallic, "roughnessFactor": look.roughness}

@@ -1,7 +1,8 @@
 """Coarse stream of the hierarchical road model creator: LiDAR road surface reconstruction.
 
 Registers the reconstructor ``lidar_surface`` (produces ``"surface"``). The kernels are core-free
-apart from :class:`~roadtwin_core.RoadtwinError` (numpy / scipy / open3d):
+apart from :class:`~roadtwin_core.RoadtwinError` and, for the simulator's ground truth,
+:func:`~roadtwin_core.iso8608_surface` (numpy / scipy / open3d):
 
 - :mod:`.reconstruct` -- frames + poses -> fused road points -> RANSAC ground plane to Z-up ->
   XY voxel downsample -> trimmed Delaunay -> robust local-plane elevation per vertex;
@@ -27,13 +28,17 @@ reads it back.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from roadtwin_core import RoadtwinError, SampledSurface, SurfaceModel, check_params, field, hookimpl
+from roadtwin_core.atomic import atomic_files
+from roadtwin_core.usd import apply_labels, new_stage, read_mesh, safe_prim_name, set_attrs, set_kind, write_mesh
 
 from .reconstruct import (apply, check_points, fuse_frames, ground_alignment, intrinsics, load_extrinsic, load_frame, load_mask,
                           load_poses, local_heights, mask_road_points, surface_mesh)
@@ -172,8 +177,6 @@ class LidarSurfaceReconstructor:
         except RuntimeError as exc:  # open3d refuses extents its voxel grid cannot index
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise RoadtwinError(f"{source}: cannot build the surface ({first})") from None
-        from roadtwin_core.usd import safe_prim_name
-
         stem = "lidar" if isinstance(frames_in[0], np.ndarray) else safe_prim_name(Path(names[0]).stem, empty="surface",
                                                                                    lead="s")
         return LidarSurface(f"{stem}_surface", verts, faces, T, source,
@@ -191,14 +194,6 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
     """One self-contained library asset: ``/<name>`` (Xform, kind component, label
     ``road_surface``, ``roadtwin:source``, ``roadtwin:surface:*``) over ``/<name>/mesh``.
     Written beside the target and renamed, so a failure leaves nothing."""
-    import json
-
-    from pxr import Gf, Sdf, UsdGeom, Vt
-
-    from roadtwin_core.atomic import atomic_files
-    from roadtwin_core.usd import safe_prim_name
-    from roadtwin_core.usd import apply_labels, new_stage, set_attrs, set_kind, write_mesh
-
     path = Path(path)
     name = safe_prim_name(surface.name, empty="surface", lead="s")
     with atomic_files(path) as (tmp,):
@@ -225,10 +220,6 @@ def write_surface_asset(surface: LidarSurface, path: str | Path) -> Path:
 def read_surface_asset(path: str | Path) -> LidarSurface:
     """A surface asset written by :func:`write_surface_asset` (or any asset whose default prim
     holds one triangle mesh) as a :class:`LidarSurface`."""
-    from pxr import Usd, UsdGeom
-
-    from roadtwin_core.usd import read_mesh
-
     path = Path(path)
     if not path.exists():
         raise RoadtwinError(f"{path}: no such surface asset")

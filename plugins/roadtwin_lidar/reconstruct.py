@@ -29,11 +29,13 @@ a mismatched mask, calibration or frame order.
 """
 from __future__ import annotations
 
+import re
 import warnings
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial import Delaunay, cKDTree
+from scipy.spatial.transform import Rotation
 
 from roadtwin_core import RoadtwinError
 
@@ -119,8 +121,6 @@ def _check_complete(p: Path, suffix: str, n_read: int) -> None:
     """open3d pads a truncated file's missing points with zeros: compare the point count the
     header declares (PLY ``element vertex N``, PCD ``POINTS N``) with what the body holds
     (ASCII: data lines; binary: at least 12 bytes, three float32, a point)."""
-    import re
-
     raw = p.read_bytes()
     head = raw[:65536].decode("latin-1")
     m = re.search(r"^element vertex (\d+)" if suffix == ".ply" else r"^POINTS (\d+)", head, re.M)
@@ -138,8 +138,6 @@ def _check_complete(p: Path, suffix: str, n_read: int) -> None:
 
 def load_poses(path: str | Path) -> np.ndarray:
     """(F, 4, 4) sensor-to-world poses from a KITTI (12 numbers/line) or TUM (8 numbers/line) file."""
-    from scipy.spatial.transform import Rotation
-
     p = Path(path)
     if p.is_dir():
         raise RoadtwinError(f"{p}: is a directory, not a pose file")

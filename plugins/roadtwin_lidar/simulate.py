@@ -23,6 +23,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
+
+from roadtwin_core import iso8608_surface
 
 ROAD_LABEL = 40  # SemanticKITTI "road"
 
@@ -132,8 +135,6 @@ def pothole_road_mesh(bounds=(-2.0, -2.0, 5.0, 2.0), road_class: str = "C", seed
                       pothole_depth_m: float = 0.05, dx: float = 0.02):
     """Ground truth: ISO 8608 road (``roadtwin_core.iso8608_surface``) minus a bowl pothole,
     as a regular triangle grid of spacing ``dx``. Returns ``(vertices, faces, height_fn)``."""
-    from roadtwin_core import iso8608_surface
-
     rough = iso8608_surface(road_class, bounds, seed, dx=0.05)
     xmin, ymin, xmax, ymax = bounds
     xs = np.arange(xmin, xmax + dx / 2, dx)
@@ -156,8 +157,6 @@ def pothole_road_mesh(bounds=(-2.0, -2.0, 5.0, 2.0), road_class: str = "C", seed
 
 def rot_to_quat(R: np.ndarray) -> np.ndarray:
     """(qx, qy, qz, qw) of a rotation matrix."""
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_matrix(R).as_quat()
 
 

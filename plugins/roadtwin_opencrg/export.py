@@ -28,6 +28,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from shapely.geometry import LineString, Point
 
 from roadtwin_core import RoadtwinError
 from roadtwin_core.geometry import MeshHeights
@@ -96,8 +97,6 @@ def drape(vertices: np.ndarray, faces: np.ndarray, xy: np.ndarray) -> np.ndarray
 
 def _half_width(seg) -> float:
     """Distance from the middle of the centerline to the outline along the normal, both sides, min."""
-    from shapely.geometry import LineString, Point
-
     cl = seg.centerline
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(cl, axis=0), axis=1))])
     h = s[-1] / 2

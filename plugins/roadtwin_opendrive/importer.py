@@ -65,9 +65,9 @@ from shapely.geometry import MultiPolygon, Polygon
 
 from roadtwin_core import (ComposeRules, LaneMarking, RoadSegment, RoadtwinError, TownLayout, check_params, field,
                            make_params, triangle_areas)
+from roadtwin_core.usd import safe_prim_name
 
 from ._marks import MarkStyle, mark_style
-
 from ._refline import ReferenceLine, eval_cubics
 from ._xodr import OpenDriveFile, Road, read_xodr
 
@@ -104,8 +104,6 @@ class OpenDriveNetwork:
 
 def _safe(text: str) -> str:
     """An id piece made of prim-name characters (it may start with a digit: it is a suffix)."""
-    from roadtwin_core.usd import safe_prim_name  # pxr only when importing a map
-
     return safe_prim_name(text, empty="", lead="")
 
 

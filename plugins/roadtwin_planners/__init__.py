@@ -3,7 +3,7 @@
 Each planner is one module with a small class: ``name``, ``description``, a ``Params``
 dataclass (bounds checked by roadtwin_core) and
 ``plan(grid, start, goal, vehicle, collision, params, rng) -> PlannerOutput``, where
-``grid`` is a :class:`roadtwin_core.planning.grid.GridMap`, ``vehicle`` a
+``grid`` is a :class:`roadtwin_core.planning.GridMap`, ``vehicle`` a
 :class:`roadtwin_core.planning.Footprint` (``VehicleParams.footprint()``) and ``collision``
 "wheel" or "body". :class:`roadtwin_core.planning.PlannerOutput` carries the poses ((N, 3), or
 None when no path was found) and the call's statistics (expansions, tree size): planners keep no

@@ -12,6 +12,8 @@ from typing import Any, Callable, Hashable, Iterable
 
 import numpy as np
 
+from roadtwin_core.planning import GridMap, drivable_distance
+
 
 @dataclass(eq=False)
 class Node:
@@ -68,7 +70,7 @@ def dedupe(poses: np.ndarray) -> np.ndarray:
     return poses[np.concatenate([[True], ~same])]
 
 
-def heuristic_field(grid, goal):
+def heuristic_field(grid: GridMap, goal):
     """Cost-to-go estimate: max(Euclidean distance, 8-connected drivable geodesic) to the goal.
 
     The geodesic (Hybrid A*'s "holonomic with obstacles" heuristic) steers the search around
@@ -77,8 +79,6 @@ def heuristic_field(grid, goal):
     which bounds the cost of the path found at 1.0824 x the optimum; dividing it by 1.0824 to
     make it admissible left a curve's heuristic metres short and the search exhausted its budget.
     """
-    from roadtwin_core.planning import drivable_distance
-
     geo = drivable_distance(grid, goal)
     gx, gy = goal[0], goal[1]
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadtwin_core import field
-from roadtwin_core.planning import CollisionChecker, PlannerOutput, wrap_angle
+from roadtwin_core.planning import CollisionChecker, GridMap, PlannerOutput, wrap_angle
 
 from ._search import Node, astar, heuristic_field
 
@@ -125,7 +125,7 @@ class HybridAStar:
         shot_every: int = field(4, lo=1, hi=1000, doc="try the Dubins shot every n-th expansion in range")
         max_expansions: int = field(30_000, lo=10, hi=10_000_000, doc="search budget")
 
-    def plan(self, grid, start, goal, vehicle, collision, params, rng):
+    def plan(self, grid: GridMap, start, goal, vehicle, collision, params, rng):
         checker = CollisionChecker(grid, vehicle, collision)
         start = np.asarray(start, dtype=np.float64)
         goal = np.asarray(goal, dtype=np.float64)

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadtwin_core import field
-from roadtwin_core.planning import CollisionChecker, PlannerOutput, transform, wrap_angle
+from roadtwin_core.planning import CollisionChecker, GridMap, PlannerOutput, transform, wrap_angle
 
 from ._search import Node, astar, heuristic_field
 
@@ -73,7 +73,7 @@ class StateLattice:
                     prims.append((curve, _arc(curve) + params.turn_cost_m_per_rad * turn, k))
         return prims
 
-    def plan(self, grid, start, goal, vehicle, collision, params, rng):
+    def plan(self, grid: GridMap, start, goal, vehicle, collision, params, rng):
         checker = CollisionChecker(grid, vehicle, collision)
         start = np.asarray(start, dtype=np.float64)
         goal = np.asarray(goal, dtype=np.float64)

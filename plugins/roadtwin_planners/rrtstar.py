@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from roadtwin_core import RoadtwinError, field
-from roadtwin_core.planning import CollisionChecker, PlannerOutput, reference_frame, reference_path, wrap_angle
+from roadtwin_core.planning import (CollisionChecker, GridMap, PlannerOutput, reference_frame, reference_path,
+                                    wrap_angle)
 
 from ._search import dedupe
 
@@ -45,156 +46,195 @@ class RRTStar:
         max_turn_deg: float = field(60.0, lo=1.0, hi=180.0, doc="largest turn on the spot (footprint motion)")
         corridor_m: float = field(15.0, lo=0.5, hi=1e6, doc="sample only drivable cells this close to the midline")
 
-    def plan(self, grid, start, goal, vehicle, collision, params, rng):
+    def plan(self, grid: GridMap, start, goal, vehicle, collision, params, rng):
         if params.footprint not in ("lane", "motion"):
             raise RoadtwinError(f"planner rrtstar: parameter footprint must be 'lane' or 'motion', got {params.footprint!r}")
         lane_mode = params.footprint == "lane"
         checker = CollisionChecker(grid, vehicle, collision)
         start = np.asarray(start, dtype=np.float64)
         goal = np.asarray(goal, dtype=np.float64)
-        res = grid.resolution
         corridor, lane = reference_frame(grid, reference_path(grid, start, goal))
-        lane = np.nan_to_num(lane)
         iy_c, ix_c = np.nonzero(grid.drivable & (np.nan_to_num(corridor, nan=np.inf) <= params.corridor_m))
         centres = grid.cell_to_world(ix_c, iy_c)
-        cap = params.iterations + 1
-        xy = np.zeros((cap, 2))
-        yaw = np.zeros(cap)          # lane: the vertex's heading; motion: heading of its incoming edge
-        cost = np.zeros(cap)
-        parent = np.full(cap, -1, np.int64)
-        children: list[list[int]] = [[]]
-        xy[0], yaw[0] = start[:2], start[2]
-        n = 1
+        tree = _Tree(grid, checker, np.nan_to_num(lane), start, params.iterations + 1, lane_mode,
+                     math.radians(params.max_turn_deg) + 1e-9)
         steer = params.steer_m
         radius = max(params.rewire_radius_m, steer * 1.0001)
-        max_turn = math.radians(params.max_turn_deg) + 1e-9
-
-        def lane_yaw(p):
-            ix, iy = grid.world_to_cell(p)
-            return float(lane[iy, ix])
-
-        def edge(i: int, p: np.ndarray, p_yaw: float) -> np.ndarray | None:
-            """Chain from vertex i to point p arriving with ``p_yaw``; None if the turn is too big."""
-            x, y = xy[i]
-            if lane_mode:
-                if i == 0:  # the start pose: turn on the spot to the lane heading first
-                    y0 = lane_yaw(xy[0])
-                    return np.array([[x, y, yaw[0]], [x, y, yaw[0] + wrap_angle(y0 - yaw[0])],
-                                     [p[0], p[1], yaw[0] + wrap_angle(y0 - yaw[0]) + wrap_angle(p_yaw - y0)]])
-                return np.array([[x, y, yaw[i]], [p[0], p[1], yaw[i] + wrap_angle(p_yaw - yaw[i])]])
-            turn = float(wrap_angle(p_yaw - yaw[i]))
-            if abs(turn) > max_turn:
-                return None
-            return np.array([[x, y, yaw[i]], [x, y, yaw[i] + turn], [p[0], p[1], yaw[i] + turn]])
-
-        def arrival_yaw(i: int, p: np.ndarray) -> float:
-            if lane_mode:
-                return lane_yaw(p)
-            return math.atan2(p[1] - xy[i, 1], p[0] - xy[i, 0])
-
-        def check(chains):
-            """chains may hold None (refused turns): those are not free."""
-            ok = np.zeros(len(chains), bool)
-            idx = [k for k, c in enumerate(chains) if c is not None]
-            if idx:
-                ok[idx] = checker.chains_free([chains[k] for k in idx])
-            return ok
-
         for _ in range(params.iterations):
-            if rng.random() < params.goal_bias:
-                q = goal[:2].copy()
-            else:
-                q = centres[rng.integers(len(centres))] + (rng.random(2) - 0.5) * res
-            d2 = ((xy[:n] - q) ** 2).sum(axis=1)
-            i_near = int(np.argmin(d2))
-            dist = math.sqrt(d2[i_near])
-            if dist < 1e-6:
+            new = tree.steer(_sample(rng, goal, centres, grid.resolution, params.goal_bias), steer)
+            if new is None or not grid.sample(grid.drivable, new, False):
                 continue
-            new = xy[i_near] + (q - xy[i_near]) * min(1.0, steer / dist)
-            if not grid.sample(grid.drivable, new, False):
-                continue
-            dn = np.sqrt(((xy[:n] - new) ** 2).sum(axis=1))
-            near = np.flatnonzero((dn <= radius) & (dn > 1e-9))
+            near, dn = tree.near(new, radius, params.neighbours)
             if len(near) == 0:
                 continue
-            near = near[np.argsort(dn[near], kind="stable")][:params.neighbours]
-            order = near[np.argsort(cost[near] + dn[near], kind="stable")]
-            chains = [edge(int(i), new, arrival_yaw(int(i), new)) for i in order]
-            ok = check(chains)
-            if not ok.any():
-                continue
-            k = int(np.argmax(ok))
-            p = int(order[k])
-            j = n
-            n += 1
-            xy[j], yaw[j], cost[j], parent[j] = new, chains[k][-1, 2], cost[p] + dn[p], p
-            children.append([])
-            children[p].append(j)
-            # Rewire neighbours that get cheaper through the new vertex (one batched check).
-            cand = [int(i) for i in near if i != p and i != 0 and cost[j] + dn[i] < cost[i] - 1e-9]
-            if not cand:
-                continue
-            chains, owner, edges = [], [], {}
-            for c in cand:
-                e = edges[c] = edge(j, xy[c], arrival_yaw(j, xy[c]))
-                chains.append(e)
-                owner.append(c)
-                if not lane_mode and e is not None:
-                    for ch in children[c]:  # the turn at c towards each child
-                        chains.append(np.array([[xy[c, 0], xy[c, 1], e[-1, 2]],
-                                                [xy[c, 0], xy[c, 1], e[-1, 2] + wrap_angle(yaw[ch] - e[-1, 2])]]))
-                        owner.append(c)
-            ok = check(chains)
-            owner = np.array(owner)
-            for c in cand:
-                e = edges[c]
-                if e is None or not ok[owner == c].all():
-                    continue
-                if not lane_mode:
-                    # Keep turns within the limit at c (its children's headings are unchanged).
-                    if any(abs(float(wrap_angle(yaw[ch] - e[-1, 2]))) > max_turn for ch in children[c]):
-                        continue
-                children[parent[c]].remove(c)
-                parent[c] = j
-                yaw[c] = e[-1, 2]
-                children[j].append(c)
-                delta = cost[j] + dn[c] - cost[c]
-                stack = [c]
-                while stack:
-                    v = stack.pop()
-                    cost[v] += delta
-                    stack.extend(children[v])
+            j = tree.connect(new, near, dn)
+            if j is not None:
+                tree.rewire(j, near, dn)
+        return tree.connect_goal(start, goal, steer)
 
-        # Cheapest collision-free connection to the exact goal pose.
+
+def _sample(rng, goal: np.ndarray, centres: np.ndarray, res: float, goal_bias: float) -> np.ndarray:
+    """The goal with probability ``goal_bias``, else a uniform point in a corridor cell."""
+    if rng.random() < goal_bias:
+        return goal[:2].copy()
+    return centres[rng.integers(len(centres))] + (rng.random(2) - 0.5) * res
+
+
+class _Tree:
+    """The RRT* tree, grown in place: vertex positions, headings (lane: the vertex's heading;
+    motion: heading of its incoming edge), costs from the start and parent / children links."""
+
+    def __init__(self, grid: GridMap, checker: CollisionChecker, lane: np.ndarray, start: np.ndarray,
+                 capacity: int, lane_mode: bool, max_turn: float):
+        self.grid, self.checker, self.lane = grid, checker, lane
+        self.lane_mode, self.max_turn = lane_mode, max_turn
+        self.xy = np.zeros((capacity, 2))
+        self.yaw = np.zeros(capacity)
+        self.cost = np.zeros(capacity)
+        self.parent = np.full(capacity, -1, np.int64)
+        self.children: list[list[int]] = [[]]
+        self.xy[0], self.yaw[0] = start[:2], start[2]
+        self.n = 1
+
+    # ------------------------------------------------------------------ edges
+    def lane_yaw(self, p) -> float:
+        ix, iy = self.grid.world_to_cell(p)
+        return float(self.lane[iy, ix])
+
+    def edge(self, i: int, p: np.ndarray, p_yaw: float) -> np.ndarray | None:
+        """Chain from vertex i to point p arriving with ``p_yaw``; None if the turn is too big."""
+        xy, yaw = self.xy, self.yaw
+        x, y = xy[i]
+        if self.lane_mode:
+            if i == 0:  # the start pose: turn on the spot to the lane heading first
+                y0 = self.lane_yaw(xy[0])
+                return np.array([[x, y, yaw[0]], [x, y, yaw[0] + wrap_angle(y0 - yaw[0])],
+                                 [p[0], p[1], yaw[0] + wrap_angle(y0 - yaw[0]) + wrap_angle(p_yaw - y0)]])
+            return np.array([[x, y, yaw[i]], [p[0], p[1], yaw[i] + wrap_angle(p_yaw - yaw[i])]])
+        turn = float(wrap_angle(p_yaw - yaw[i]))
+        if abs(turn) > self.max_turn:
+            return None
+        return np.array([[x, y, yaw[i]], [x, y, yaw[i] + turn], [p[0], p[1], yaw[i] + turn]])
+
+    def arrival_yaw(self, i: int, p: np.ndarray) -> float:
+        if self.lane_mode:
+            return self.lane_yaw(p)
+        return math.atan2(p[1] - self.xy[i, 1], p[0] - self.xy[i, 0])
+
+    def check(self, chains) -> np.ndarray:
+        """chains may hold None (refused turns): those are not free."""
+        ok = np.zeros(len(chains), bool)
+        idx = [k for k, c in enumerate(chains) if c is not None]
+        if idx:
+            ok[idx] = self.checker.chains_free([chains[k] for k in idx])
+        return ok
+
+    # ------------------------------------------------------------------ growing
+    def steer(self, q: np.ndarray, steer: float) -> np.ndarray | None:
+        """The point at most ``steer`` from the nearest vertex towards ``q`` (None on a vertex)."""
+        d2 = ((self.xy[:self.n] - q) ** 2).sum(axis=1)
+        i_near = int(np.argmin(d2))
+        dist = math.sqrt(d2[i_near])
+        if dist < 1e-6:
+            return None
+        return self.xy[i_near] + (q - self.xy[i_near]) * min(1.0, steer / dist)
+
+    def near(self, new: np.ndarray, radius: float, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+        """The (at most ``neighbours``) nearest vertices within ``radius`` of ``new``, nearest
+        first, and every vertex's distance to it."""
+        dn = np.sqrt(((self.xy[:self.n] - new) ** 2).sum(axis=1))
+        near = np.flatnonzero((dn <= radius) & (dn > 1e-9))
+        if len(near) == 0:
+            return near, dn
+        return near[np.argsort(dn[near], kind="stable")][:neighbours], dn
+
+    def connect(self, new: np.ndarray, near: np.ndarray, dn: np.ndarray) -> int | None:
+        """Add ``new`` under the neighbour giving the cheapest collision-free edge; its index."""
+        order = near[np.argsort(self.cost[near] + dn[near], kind="stable")]
+        chains = [self.edge(int(i), new, self.arrival_yaw(int(i), new)) for i in order]
+        ok = self.check(chains)
+        if not ok.any():
+            return None
+        k = int(np.argmax(ok))
+        p = int(order[k])
+        j = self.n
+        self.n += 1
+        self.xy[j], self.yaw[j], self.cost[j], self.parent[j] = new, chains[k][-1, 2], self.cost[p] + dn[p], p
+        self.children.append([])
+        self.children[p].append(j)
+        return j
+
+    def rewire(self, j: int, near: np.ndarray, dn: np.ndarray) -> None:
+        """Rewire neighbours that get cheaper through vertex j (one batched check)."""
+        xy, yaw, cost, children = self.xy, self.yaw, self.cost, self.children
+        cand = [int(i) for i in near if i != self.parent[j] and i != 0 and cost[j] + dn[i] < cost[i] - 1e-9]
+        if not cand:
+            return
+        chains, owner, edges = [], [], {}
+        for c in cand:
+            e = edges[c] = self.edge(j, xy[c], self.arrival_yaw(j, xy[c]))
+            chains.append(e)
+            owner.append(c)
+            if not self.lane_mode and e is not None:
+                for ch in children[c]:  # the turn at c towards each child
+                    chains.append(np.array([[xy[c, 0], xy[c, 1], e[-1, 2]],
+                                            [xy[c, 0], xy[c, 1], e[-1, 2] + wrap_angle(yaw[ch] - e[-1, 2])]]))
+                    owner.append(c)
+        ok = self.check(chains)
+        owner = np.array(owner)
+        for c in cand:
+            e = edges[c]
+            if e is None or not ok[owner == c].all():
+                continue
+            if not self.lane_mode:
+                # Keep turns within the limit at c (its children's headings are unchanged).
+                if any(abs(float(wrap_angle(yaw[ch] - e[-1, 2]))) > self.max_turn for ch in children[c]):
+                    continue
+            self._reparent(c, j, e[-1, 2], cost[j] + dn[c] - cost[c])
+
+    def _reparent(self, c: int, j: int, c_yaw: float, delta: float) -> None:
+        """Make j the parent of c and pass c's cost change on to its subtree."""
+        self.children[self.parent[c]].remove(c)
+        self.parent[c] = j
+        self.yaw[c] = c_yaw
+        self.children[j].append(c)
+        stack = [c]
+        while stack:
+            v = stack.pop()
+            self.cost[v] += delta
+            stack.extend(self.children[v])
+
+    # ------------------------------------------------------------------ the path
+    def connect_goal(self, start: np.ndarray, goal: np.ndarray, steer: float) -> PlannerOutput:
+        """Cheapest collision-free connection to the exact goal pose, and the path through it."""
+        n, xy, yaw = self.n, self.xy, self.yaw
         dg = np.sqrt(((xy[:n] - goal[:2]) ** 2).sum(axis=1))
         cands = np.flatnonzero(dg <= steer)
-        cands = cands[np.argsort(cost[cands] + dg[cands], kind="stable")]
+        cands = cands[np.argsort(self.cost[cands] + dg[cands], kind="stable")]
         for batch in np.array_split(cands, max(1, math.ceil(len(cands) / 16))):
             chains = []
             for i in batch:
-                e = edge(int(i), goal[:2], arrival_yaw(int(i), goal[:2]) if dg[i] > 1e-9 else yaw[i])
+                e = self.edge(int(i), goal[:2], self.arrival_yaw(int(i), goal[:2]) if dg[i] > 1e-9 else yaw[i])
                 chains.append(None if e is None else np.vstack([e, [goal[0], goal[1], e[-1, 2] + wrap_angle(goal[2] - e[-1, 2])]]))
-            ok = check(chains)
+            ok = self.check(chains)
             if ok.any():
                 k = int(np.argmax(ok))
                 final = chains[k].copy()
                 final[-1] = goal
-                path = self._path(int(batch[k]), final, xy, yaw, parent, start, edge)
-                return PlannerOutput(path, {"tree_size": n})
+                return PlannerOutput(self.path(int(batch[k]), final, start), {"tree_size": n})
         return PlannerOutput(None, {"tree_size": n})
 
-    @staticmethod
-    def _path(last: int, final: np.ndarray, xy, yaw, parent, start, edge) -> np.ndarray:
+    def path(self, last: int, final: np.ndarray, start: np.ndarray) -> np.ndarray:
         verts = []
         v = last
         while v > 0:
             verts.append(v)
-            v = int(parent[v])
+            v = int(self.parent[v])
         verts.reverse()
         poses = [start]
         for v in verts:
-            p = int(parent[v])
-            chain = edge(p, xy[v], yaw[v])  # the same chain the tree accepted
+            p = int(self.parent[v])
+            chain = self.edge(p, self.xy[v], self.yaw[v])  # the same chain the tree accepted
             poses.extend(chain[1:])
         poses.extend(final[1:])
         return dedupe(np.array(poses, dtype=np.float64))

@@ -28,6 +28,8 @@ from typing import Any
 import numpy as np
 
 from roadtwin_core import DefectModel, RoadtwinError, check_params, field, hookimpl
+from roadtwin_core.atomic import atomic_output_dir
+from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
 from .mesh import DefectInstance, reconstruct_instance
 from .segment import SegmentParams, f1_score, load_disparity, load_label, segment_defects
@@ -168,8 +170,6 @@ class StereoDefects:
         models: list[DefectModel] = []
         instances: list[DefectInstance] = []
         if not transformed_in:
-            from roadtwin_core.usd import safe_prim_name
-
             stem = safe_prim_name(Path(source).stem if source != "array" else "stereo", empty="frame", lead="f")
             for i in range(1, int(labels.max()) + 1):
                 try:
@@ -193,9 +193,6 @@ class StereoDefects:
         """Write one library asset per model plus ``mask.png`` (defect pixels 255) and
         ``instances.json`` into ``out`` (replaced atomically)."""
         import cv2
-
-        from roadtwin_core.atomic import atomic_output_dir
-        from roadtwin_core.usd import write_defect_asset
 
         paths = []
         with atomic_output_dir(out) as tmp:

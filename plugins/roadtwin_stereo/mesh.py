@@ -30,6 +30,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import triangle
+from scipy.spatial import cKDTree
+from shapely import contains_xy
+from shapely.geometry import Polygon
 
 
 @dataclass
@@ -91,19 +95,41 @@ def _boundary_loop(faces: np.ndarray) -> np.ndarray:
 def reconstruct_instance(mask: np.ndarray, disp: np.ndarray, K: np.ndarray, baseline: float,
                          grid_m: float = 0.01, knn: int = 12, ring_px: tuple[int, int] = (3, 15),
                          pad_px: int | None = None) -> DefectInstance:
-    """Mesh one instance; ``disp`` is the raw disparity in pixels (NaN = invalid)."""
-    import cv2
-    import triangle
-    from scipy.spatial import cKDTree
-    from shapely.geometry import Polygon
-
+    """Mesh one instance; ``disp`` is the raw disparity in pixels (NaN = invalid). The steps
+    are the module docstring's."""
     mask = np.asarray(mask, bool)
+    m8 = _padded_mask(mask, pad_px)
+    valid = np.isfinite(disp) & (disp > 0)
+    c, n, axes = _road_frame(m8, disp, valid, K, baseline, ring_px)
+    origin, poly, bpts = _footprint(m8, K, c, n, axes, grid_m)
+    q = _instance_points(m8, disp, valid, K, baseline, origin, axes)
+    vxy, faces = _triangulate(bpts, _grid_points(poly, grid_m))
+    # heights: mean z of the k nearest instance points; the boundary at pseudo-height 0
+    _, idx = cKDTree(q[:, :2]).query(vxy, k=min(knn, len(q)))
+    z = q[np.atleast_2d(idx.T).T, 2].reshape(len(vxy), -1).mean(axis=1)
+    loop = _boundary_loop(faces)
+    z[loop] = 0.0
+    return DefectInstance(np.column_stack([vxy, z]), faces, loop, origin, axes, int(mask.sum()))
+
+
+def _padded_mask(mask: np.ndarray, pad_px: int | None) -> np.ndarray:
+    """The mask (uint8) dilated by ``pad_px`` (default 30 % of its equivalent radius, >= 4 px)."""
+    import cv2
+
     m8 = mask.astype(np.uint8)
     if pad_px is None:
         pad_px = max(4, int(round(0.3 * np.sqrt(mask.sum() / np.pi))))
     if pad_px > 0:  # put the boundary just outside the detection: see the module docstring
         m8 = cv2.dilate(m8, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * pad_px + 1,) * 2))
-    valid = np.isfinite(disp) & (disp > 0)
+    return m8
+
+
+def _road_frame(m8: np.ndarray, disp: np.ndarray, valid: np.ndarray, K: np.ndarray, baseline: float,
+                ring_px: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Road plane (a point, its normal) fitted to the ring of road pixels around the mask, and
+    the local frame's axes (rows e1, e2, n)."""
+    import cv2
+
     k_in = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px[0] + 1,) * 2)
     k_out = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px[1] + 1,) * 2)
     ring = cv2.dilate(m8, k_out).astype(bool) & ~cv2.dilate(m8, k_in).astype(bool) & valid
@@ -114,7 +140,14 @@ def reconstruct_instance(mask: np.ndarray, disp: np.ndarray, K: np.ndarray, base
     e1 = np.array([1.0, 0, 0]) - n * n[0]
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(n, e1)
-    axes = np.stack([e1, e2, n])
+    return c, n, np.stack([e1, e2, n])
+
+
+def _footprint(m8: np.ndarray, K: np.ndarray, c: np.ndarray, n: np.ndarray, axes: np.ndarray,
+               grid_m: float) -> tuple[np.ndarray, Polygon, np.ndarray]:
+    """The mask's outer contour on the road plane: the frame origin (its centroid, in camera
+    coordinates), the simplified outline about it and its boundary points every grid step."""
+    import cv2
 
     cs, _ = cv2.findContours(m8, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     cont = max(cs, key=cv2.contourArea).reshape(-1, 2).astype(np.float64)
@@ -122,7 +155,7 @@ def reconstruct_instance(mask: np.ndarray, disp: np.ndarray, K: np.ndarray, base
     t = (c @ n) / (rays @ n)
     foot = (rays * t[:, None] - c) @ axes.T
     origin_xy = np.array(Polygon(foot[:, :2]).buffer(0).centroid.coords[0])
-    origin = c + origin_xy[0] * e1 + origin_xy[1] * e2
+    origin = c + origin_xy[0] * axes[0] + origin_xy[1] * axes[1]
     poly = Polygon(foot[:, :2] - origin_xy).buffer(0)
     if poly.geom_type != "Polygon":
         poly = max(poly.geoms, key=lambda g: g.area)
@@ -130,15 +163,21 @@ def reconstruct_instance(mask: np.ndarray, disp: np.ndarray, K: np.ndarray, base
     ring_line = poly.exterior
     nb = max(8, int(np.ceil(ring_line.length / grid_m)))
     bpts = np.array([ring_line.interpolate(s).coords[0] for s in np.linspace(0, ring_line.length, nb, endpoint=False)])
+    return origin, poly, bpts
 
-    # instance points in the local frame
+
+def _instance_points(m8: np.ndarray, disp: np.ndarray, valid: np.ndarray, K: np.ndarray, baseline: float,
+                     origin: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """3D points of the (slightly grown) instance in the local frame."""
+    import cv2
+
     grow = cv2.dilate(m8, np.ones((5, 5), np.uint8)).astype(bool) & valid
     vi, ui = np.nonzero(grow)
-    q = (backproject(ui, vi, disp[vi, ui], K, baseline) - origin) @ axes.T
-    tree = cKDTree(q[:, :2])
+    return (backproject(ui, vi, disp[vi, ui], K, baseline) - origin) @ axes.T
 
-    # grid sampling, expanded ring by ring until a whole ring lies outside the footprint
-    from shapely import contains_xy
+
+def _grid_points(poly: Polygon, grid_m: float) -> np.ndarray:
+    """Grid sampling, expanded ring by ring until a whole ring lies outside the footprint."""
     inner = poly.buffer(-grid_m / 3)
     pts = []
     k = 0
@@ -156,8 +195,12 @@ def reconstruct_instance(mask: np.ndarray, disp: np.ndarray, K: np.ndarray, base
         if k > 0 and not ins.any() and k * grid_m > max(abs(minx), abs(miny), abs(maxx), abs(maxy)):
             break
         k += 1
-    gpts = np.concatenate(pts) if pts else np.zeros((0, 2))
+    return np.concatenate(pts) if pts else np.zeros((0, 2))
 
+
+def _triangulate(bpts: np.ndarray, gpts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained Delaunay of the boundary loop and grid points: counter-clockwise faces, no
+    zero-area ones, no unused vertices."""
     nbp = len(bpts)
     seg = np.stack([np.arange(nbp), (np.arange(nbp) + 1) % nbp], 1)
     tri = triangle.triangulate({"vertices": np.concatenate([bpts, gpts]), "segments": seg}, "pQ")
@@ -169,9 +212,4 @@ def reconstruct_instance(mask: np.ndarray, disp: np.ndarray, K: np.ndarray, base
     used = np.unique(faces)
     remap = -np.ones(len(vxy), np.int64)
     remap[used] = np.arange(len(used))
-    vxy, faces = vxy[used], remap[faces]
-    _, idx = tree.query(vxy, k=min(knn, len(q)))
-    z = q[np.atleast_2d(idx.T).T, 2].reshape(len(vxy), -1).mean(axis=1)
-    loop = _boundary_loop(faces)
-    z[loop] = 0.0
-    return DefectInstance(np.column_stack([vxy, z]), faces, loop, origin, axes, int(mask.sum()))
+    return vxy[used], remap[faces]

@@ -45,6 +45,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage as ndi
+
+from roadtwin_core import RoadtwinError
 
 MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian x this = its standard deviation
 
@@ -68,8 +71,6 @@ def load_disparity(path: str | Path, scale: float = 1.0) -> np.ndarray:
     normalised transformed maps of Fan et al. any scale since detection is scale-free), 8-bit
     PNG, ``.npy`` or ``.pfm`` float maps (non-finite or <= 0 invalid for PNG only)."""
     import cv2
-
-    from roadtwin_core import RoadtwinError
 
     path = Path(path)
     if not path.exists():
@@ -184,7 +185,6 @@ def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | N
     """Instance labels (int32, 0 = road) from :func:`road_residual`'s output (steps 4-8 of the
     module docstring); split off so a parameter sweep reuses one surface fit."""
     import cv2
-    from scipy import ndimage as ndi
 
     p = params or SegmentParams()
     out = np.zeros(z.shape, np.int32)

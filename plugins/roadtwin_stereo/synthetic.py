@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import gaussian_filter, map_coordinates
+from scipy.spatial import cKDTree
 
 
 @dataclass
@@ -85,8 +87,6 @@ class BowlScene:
     def stereo_pair(self, seed: int = 0, texture_m: float = 0.004, noise: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
         """A rendered rectified pair (uint8 gray) of the road with a random texture fixed on the
         surface (cells of ``texture_m``), the right camera ``baseline`` to the right."""
-        from scipy.ndimage import gaussian_filter, map_coordinates
-
         rng = np.random.default_rng(seed)
         ext = 2.0 * self.distance  # covers the view of any camera here (half-angle < 35 deg, tilt <= 45)
         n = int(2 * ext / texture_m)
@@ -132,8 +132,6 @@ def hausdorff_to_bowl(scene: BowlScene, recon_camera_points: np.ndarray, step: f
     """(symmetric Hausdorff, mean distance) in m between reconstructed surface samples (camera
     coordinates) and the true surface: reconstruction -> true surface (bowl and plane around it),
     and true bowl (r <= R) -> reconstruction."""
-    from scipy.spatial import cKDTree
-
     rec = scene.to_local(recon_camera_points)
     true = scene.surface_samples(step=step, margin=2.0)
     d1, _ = cKDTree(true).query(rec)

@@ -1,24 +1,24 @@
 """``roadtwin reconstruct defects``: stereo defect reconstruction (the paper's fine stream);
 ``roadtwin reconstruct surface``: LiDAR road surface reconstruction (the coarse stream).
 
-Registered in :mod:`roadtwin_core.cli` with ``app.add_typer(reconstruct_app, name="reconstruct")``.
-The work is done by the reconstructor plugins named ``stereo_defects`` and ``lidar_surface``,
-asked for through the plugin manager (the core never imports a plugin). Bad input raises
-:class:`~roadtwin_core.RoadtwinError`, printed by ``roadtwin``'s ``main`` as one line (exit 2),
-and nothing is written.
+Options only: the text options are parsed here into the typed inputs of
+:mod:`roadtwin_core.apps.reconstruct`, which checks them and runs the reconstructor plugins
+(``stereo_defects``, ``lidar_surface``). Bad input raises :class:`~roadtwin_core.RoadtwinError`,
+printed by ``roadtwin``'s ``main`` as one line (exit 2), and nothing is written.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
+
 from .._console import console
-
 from ..errors import RoadtwinError
-from ..params import PARAM_HELP, cli_params
+from ..params import PARAM_HELP, parse_param_options
 
+__all__ = ["reconstruct_app", "reconstruct_defects_command", "reconstruct_surface_command"]
 
 reconstruct_app = typer.Typer(help="Real sensor data -> road surface and defect models.", no_args_is_help=True)
 
@@ -36,7 +36,7 @@ def _floats(text: Optional[str], n: tuple[int, ...], what: str) -> Optional[list
 
 
 @reconstruct_app.command("defects")
-def reconstruct_defects(
+def reconstruct_defects_command(
     disparity: Optional[Path] = typer.Option(None, "--disparity", "-d", help="disparity map (16-bit PNG, .npy, .pfm)"),
     left: Optional[Path] = typer.Option(None, "--left", help="rectified left image (with --right: SGBM disparity)"),
     right: Optional[Path] = typer.Option(None, "--right", help="rectified right image"),
@@ -52,28 +52,14 @@ def reconstruct_defects(
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
 ) -> None:
     """Stereo pair or disparity map -> defect library assets and mask.png."""
-    from ..params import make_params
-    from ..plugins import get_plugin_manager
+    from ..apps.reconstruct import DefectInputs, reconstruct_defects
 
-    from ..atomic import output_path
-
-    output_path(out, "dir")
-    if disparity is not None and (left is not None or right is not None):
-        raise RoadtwinError("give --disparity or --left/--right, not both")
-    for p in (disparity, left, right):
-        if p is not None and not p.exists():
-            raise RoadtwinError(f"{p}: no such file")
-    rec = get_plugin_manager().get("reconstructors", reconstructor)
-    if rec.produces != "defects":
-        raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce defects")
-    params = make_params(rec.Params, {"disparity_scale": disparity_scale, "grid_m": grid}, reconstructor)
-    params = cli_params(param, params, f"reconstructor {reconstructor}")
-    k = _floats(K, (4, 9), "--K")
-    inputs = {"disparity": disparity, "left": left, "right": right, "K": k, "baseline": baseline,
-              "transformed": transformed}
-    result = rec.run(inputs, params)
-    paths = rec.write(result, out)
-    console.print(f"wrote {out}: {int(result.labels.max())} defect instance(s), {len(paths)} asset(s), mask.png")
+    inputs = DefectInputs(disparity=disparity, left=left, right=right, K=_floats(K, (4, 9), "--K"),
+                          baseline=baseline, transformed=transformed)
+    done = reconstruct_defects(inputs, out, reconstructor=reconstructor, disparity_scale=disparity_scale, grid_m=grid,
+                               params=parse_param_options(param))
+    result = done.result
+    console.print(f"wrote {out}: {int(result.labels.max())} defect instance(s), {len(done.paths)} asset(s), mask.png")
     for m in result.models:
         a = m.attributes()
         console.print(f"  {m.name}: depth {a['depthM'] * 100:.1f} cm, area {a['areaM2']:.3f} m2, "
@@ -81,7 +67,7 @@ def reconstruct_defects(
 
 
 @reconstruct_app.command("surface")
-def reconstruct_surface(
+def reconstruct_surface_command(
     frames: list[Path] = typer.Argument(..., help="point cloud frames (.ply, .pcd, .npz with 'points' [+ 'labels'], .npy)"),
     poses: Optional[Path] = typer.Option(None, "--poses", "-p", help="per-frame sensor-to-world poses: KITTI (3x4 "
                                          "per line) or TUM (t x y z qx qy qz qw); one frame without = world coordinates"),
@@ -105,56 +91,24 @@ def reconstruct_surface(
     With --masks, each frame's points are projected into its mask (camera --K, --cam-from-lidar)
     and only those landing on a road pixel are kept; points behind the camera or outside the
     image are dropped, and a frame with no road point left is an error naming it."""
-    from ..params import make_params
-    from ..plugins import get_plugin_manager
+    from ..apps.reconstruct import SurfaceInputs, reconstruct_surface
 
-    for p in [*frames, *([poses] if poses is not None else []), *(masks or []),
-              *([cam_from_lidar] if cam_from_lidar is not None else [])]:
-        if not p.exists():
-            raise RoadtwinError(f"{p}: no such file")
-    mask_files: Optional[list[Path]] = None
-    if masks:
-        mask_files = []
-        for m in masks:
-            if m.is_dir():
-                found = sorted(q for q in m.iterdir() if q.is_file() and q.suffix.lower() in (".png", ".jpg", ".jpeg",
-                                                                                            ".bmp", ".tif", ".tiff"))
-                if not found:
-                    raise RoadtwinError(f"{m}: no mask images (.png) in the folder")
-                mask_files += found
-            else:
-                mask_files.append(m)
-        if len(mask_files) != len(frames):
-            raise RoadtwinError(f"--masks: {len(mask_files)} masks for {len(frames)} frames (one mask per frame)")
-        if K is None:
-            raise RoadtwinError("--masks needs the camera intrinsics --K fx,fy,cx,cy")
-        if cam_from_lidar is None:
-            raise RoadtwinError("--masks needs the camera-from-LiDAR extrinsic --cam-from-lidar FILE (4x4)")
-    elif K is not None or cam_from_lidar is not None:
-        raise RoadtwinError("--K and --cam-from-lidar are only used with --masks")
-    k = _floats(K, (4,), "--K")
-    if out.suffix not in (".usda", ".usd", ".usdc"):
-        raise RoadtwinError(f"{out}: the surface asset must be a .usda, .usd or .usdc file")
-    from ..atomic import output_path
-
-    output_path(out)
-    labels = None
-    if road_labels.strip().lower() not in ("", "all", "none"):
-        values = _floats(road_labels, tuple(range(1, 257)), "--road-labels")
-        if not all(np.isfinite(v) and v == int(v) and 0 <= v < 2**32 for v in values):
-            raise RoadtwinError(f"--road-labels: label values are integers in 0..{2**32 - 1}, got {road_labels!r}")
-        labels = [int(v) for v in values]
-    rec = get_plugin_manager().get("reconstructors", reconstructor)
-    if rec.produces != "surface":
-        raise RoadtwinError(f"reconstructor {reconstructor!r} does not produce a surface")
-    params = make_params(rec.Params, {"voxel_m": voxel, "radius_m": radius, "align": not no_align}, reconstructor)
-    params = cli_params(param, params, f"reconstructor {reconstructor}")
-    inputs = {"frames": list(frames), "poses": poses, "road_labels": labels}
-    if mask_files is not None:
-        inputs.update(masks=mask_files, K=k, cam_from_lidar=cam_from_lidar)
-    surface = rec.run(inputs, params)
-    path = rec.write(surface, out)
-    lo, hi = surface.vertices.min(axis=0), surface.vertices.max(axis=0)
-    console.print(f"wrote {path}: {len(surface.vertices)} vertices, {len(surface.faces)} triangles, "
+    inputs = SurfaceInputs(frames=list(frames), poses=poses, road_labels=_road_labels(road_labels),
+                           masks=masks or None, K=_floats(K, (4,), "--K"), cam_from_lidar=cam_from_lidar)
+    done = reconstruct_surface(inputs, out, reconstructor=reconstructor, voxel_m=voxel, radius_m=radius,
+                               align=not no_align, params=parse_param_options(param))
+    vertices, faces = done.surface.vertices, done.surface.faces
+    lo, hi = vertices.min(axis=0), vertices.max(axis=0)
+    console.print(f"wrote {done.path}: {len(vertices)} vertices, {len(faces)} triangles, "
                   f"{hi[0] - lo[0]:.2f} x {hi[1] - lo[1]:.2f} m, z {lo[2]:+.3f}..{hi[2]:+.3f} m "
                   f"from {len(frames)} frame(s)")
+
+
+def _road_labels(text: str) -> list[int] | None:
+    """``--road-labels``: label values (integers), or None for 'all' (every point is road)."""
+    if text.strip().lower() in ("", "all", "none"):
+        return None
+    values = _floats(text, tuple(range(1, 257)), "--road-labels")
+    if not all(math.isfinite(v) and v == int(v) and 0 <= v < 2**32 for v in values):
+        raise RoadtwinError(f"--road-labels: label values are integers in 0..{2**32 - 1}, got {text!r}")
+    return [int(v) for v in values]

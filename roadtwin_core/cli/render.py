@@ -7,7 +7,8 @@ command does is ``roadtwin_core.apps.render``).
         --classmap builtin:road_defects_br --frames 2000 --executor local -o out/survey
 
 How cameras, appearance, randomization, class maps and executors are chosen: see
-``roadtwin_core.apps.render.run``.
+``roadtwin_core.apps.render.run``. The options become a :class:`~roadtwin_core.apps.render.RenderOptions`,
+``--param KEY=VALUE`` a dict the app checks against the renderer's ``Params``.
 """
 from __future__ import annotations
 
@@ -15,9 +16,13 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from .._console import console
-from ..params import PARAM_HELP
+from .._console import console, err_console
+from ..params import PARAM_HELP, parse_param_options
+from ..render.rig_usd import add_rig_cameras, read_stage_cameras
+
+__all__ = ["render", "rig_add", "rig_app"]
 
 
 def render(
@@ -67,14 +72,18 @@ def render(
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"renderer {PARAM_HELP}"),
 ) -> None:
     """Render RGB, labels, depth, normals, stereo and events from a composed town."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress as Bar, TextColumn, TimeElapsedColumn
-
-    from .._console import err_console
-    from ..apps.render import run_render
+    from ..apps.render import RenderOptions, run_render
     from ..apps.render.report import print_summary
 
-    with Bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-             console=err_console, transient=True, disable=not err_console.is_terminal) as bar:
+    options = RenderOptions(frames=frames, rig=rig, views=views, randomize=randomize, classmap=classmap, size=size,
+                            stereo=stereo, baseline=baseline, events=events, formats=formats, seed=seed, hfov=hfov,
+                            height=height, pitch=pitch, poses=poses, weather=weather, material=material,
+                            renderer=renderer, device=device, backend=backend, executor=executor, workers=workers,
+                            ray_address=ray_address, speed=speed, event_rate=event_rate, event_frames=event_frames,
+                            event_size=event_size, event_threshold=event_threshold,
+                            renderer_params=parse_param_options(param))
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console, transient=True, disable=not err_console.is_terminal) as bar:
         tasks: dict[str, int] = {}
 
         def report(what: str, done: int, total: int) -> None:
@@ -82,13 +91,7 @@ def render(
                 tasks[what] = bar.add_task(f"{what} frames", total=total)
             bar.update(tasks[what], completed=done)
 
-        summary = run_render(stage, out, frames=frames, size=size, stereo=stereo, baseline=baseline, events=events,
-                             formats=formats, seed=seed, hfov=hfov, height=height, pitch=pitch, poses=poses,
-                             weather=weather, material=material, renderer=renderer, device=device, backend=backend,
-                             speed=speed, event_rate=event_rate, event_frames=event_frames, event_size=event_size,
-                             event_threshold=event_threshold, rig=rig, views=views, randomize=randomize,
-                             classmap=classmap, executor=executor, workers=workers, ray_address=ray_address,
-                             progress=report, param=param)
+        summary = run_render(stage, out, options, progress=report)
     print_summary(console, summary, out)
 
 
@@ -104,7 +107,6 @@ def rig_add(
 ) -> None:
     """Write camera prims for rig presets into layers/cameras.usda (the stage's strongest sublayer)."""
     from ..apps.render.report import print_rig_cameras
-    from ..render.rig_usd import add_rig_cameras, read_stage_cameras
 
     names = [r.strip() for r in rig.split(",") if r.strip()]
     layer = add_rig_cameras(stage, names, at_s=at_s)

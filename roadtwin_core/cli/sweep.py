@@ -1,10 +1,7 @@
 """``roadtwin sweep``: vibration sweeps over a town's defects (or a straight ISO 8608 test road).
 
-Options only: what the command does is ``roadtwin_core.apps.sweep``. ``cli.py`` registers it with::
-
-    from .cli_sweep import sweep; app.command()(sweep)
-
-Heavy imports (the physics backend, numpy work, matplotlib) happen inside the function.
+Options only: the text options are parsed here (speeds, offsets, tire sampling, ``--param``);
+what the command does is :func:`roadtwin_core.apps.sweep.command.sweep_to_folder`.
 """
 from __future__ import annotations
 
@@ -12,12 +9,11 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+
 from .._console import console, err_console
+from ..params import PARAM_HELP, parse_param_options
 
-from ..errors import RoadtwinError
-from ..params import PARAM_HELP, cli_params
-
-_console, _err = console, err_console
+__all__ = ["sweep"]
 
 
 def sweep(
@@ -45,29 +41,18 @@ def sweep(
 ) -> None:
     """Drive vehicles over defects at several speeds; write g/aw per run, IMU traces, plots and a
     recommended speed per defect."""
-    from ..apps.sweep import SweepConfig, parse_offsets, parse_speeds, run_sweep
+    from ..apps.sweep import parse_offsets, parse_speeds
+    from ..apps.sweep.command import sweep_to_folder
     from ..apps.sweep.report import print_report
-    from ..apps.sweep.setup import load_scenario, sim_params
-    from ..atomic import atomic_output_dir
-    from ..plugins import get_plugin_manager
-    from ..atomic import output_path
-    from ..vehicle import VehicleParams, load_full_vehicle
+    from ..apps.sweep.setup import sim_params
 
-    output_path(out, "dir")
-    if (stage is None) == (surface is None):
-        raise RoadtwinError("sweep: give either a STAGE or --surface iso8608:CLASS (not both, not neither)")
     speed_list = parse_speeds(speeds)
-    offset_list = parse_offsets(offsets)
-    params = load_full_vehicle(vehicle, VehicleParams())
-    sim = sim_params(dt, imu_rate, device, tire)
-    sim = cli_params(param, sim, f"physics backend {backend}").check("sweep")
-    engine = get_plugin_manager().get("physics_backends", backend)
-    scenario = load_scenario(stage, surface, length, seed, defects)
-    config = SweepConfig(speeds_kmh=speed_list, vehicles={params.name: params}, offsets_m=offset_list, sim=sim)
 
     def progress(msg: str) -> None:
-        _err.print(f"[dim]{msg}[/]", highlight=False)
+        err_console.print(f"[dim]{msg}[/]", highlight=False)
 
-    with atomic_output_dir(out) as tmp:
-        result = run_sweep(scenario, engine, config, outdir=tmp, plots=plots, rerun=rerun, progress=progress)
-    print_report(_console, result, out, backend, len(speed_list))
+    result = sweep_to_folder(out, speeds_kmh=speed_list, sim=sim_params(dt, imu_rate, device, tire), stage=stage,
+                             surface=surface, backend=backend, vehicle=vehicle, offsets_m=parse_offsets(offsets),
+                             length=length, seed=seed, defects=defects, backend_params=parse_param_options(param),
+                             plots=plots, rerun=rerun, progress=progress)
+    print_report(console, result, out, backend, len(speed_list))

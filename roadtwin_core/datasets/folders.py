@@ -10,7 +10,7 @@ Two layouts are read, so real and rendered frames go through the same code::
 Labels are single-channel PNGs of class ids ``0 .. num_classes-1``, 255 = ignore. Whatever does
 not fit (a missing folder, an empty one, images and labels that do not pair up by stem, a label
 value outside the classes, a label of another size than its image) is a
-:class:`RoadtwinError` of one line naming the folder or file. numpy + Pillow only; torch is
+:class:`RoadtwinError` of one line naming the folder or file. numpy + Pillow; torch is
 imported when :class:`SegmentationFolder` is first used.
 """
 from __future__ import annotations
@@ -21,14 +21,16 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from PIL import Image
 
 from ..errors import RoadtwinError
+from ..render import IGNORE_INDEX
+from ._lazy_torch import lazy_classes
 
 __all__ = ["IGNORE_INDEX", "IMAGE_SUFFIXES", "Sample", "SegmentationFolder", "find_pairs", "load_folder", "read_image",
            "read_label", "read_sample"]
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
-IGNORE_INDEX = 255
 
 
 @dataclass(frozen=True)
@@ -97,8 +99,6 @@ def find_pairs(folder: str | Path) -> list[Sample]:
 
 def read_image(path: str | Path) -> np.ndarray:
     """(H, W, 3) uint8 RGB."""
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             return np.asarray(im.convert("RGB"))
@@ -108,8 +108,6 @@ def read_image(path: str | Path) -> np.ndarray:
 
 def read_label(path: str | Path, num_classes: int, shape: tuple[int, int] | None = None) -> np.ndarray:
     """(H, W) uint8 class ids, checked: every value < ``num_classes`` or 255 (ignore)."""
-    from PIL import Image
-
     try:
         with Image.open(path) as im:
             if im.mode not in ("L", "P", "I", "I;16"):
@@ -132,8 +130,6 @@ def read_sample(sample: Sample, num_classes: int, size: tuple[int, int] | None =
     img = read_image(sample.image)
     lab = read_label(sample.label, num_classes, img.shape[:2])
     if size is not None and (img.shape[1], img.shape[0]) != tuple(size):
-        from PIL import Image
-
         img = np.asarray(Image.fromarray(img).resize(tuple(size), Image.BILINEAR))
         lab = np.asarray(Image.fromarray(lab).resize(tuple(size), Image.NEAREST))
     return img, lab
@@ -184,13 +180,4 @@ def _make_class():
     return SegmentationFolder
 
 
-_cls = None
-
-
-def __getattr__(name):
-    global _cls
-    if name == "SegmentationFolder":
-        if _cls is None:
-            _cls = _make_class()
-        return _cls
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_classes(__name__, {"SegmentationFolder": _make_class})

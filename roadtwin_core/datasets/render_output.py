@@ -18,6 +18,10 @@ import json
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
+
+from ..errors import RoadtwinError
+from ._lazy_torch import lazy_classes
 
 __all__ = ["RenderDataset"]
 
@@ -29,8 +33,6 @@ def _read(path: Path, modality: str) -> np.ndarray:
     if path.suffix == ".npy":
         a = np.load(path)
         return np.ascontiguousarray(a.transpose(2, 0, 1)) if modality == "normal" else a
-    from PIL import Image
-
     a = np.asarray(Image.open(path))
     if modality.startswith("image"):
         return np.ascontiguousarray(a[..., :3].transpose(2, 0, 1), dtype=np.float32) / 255.0
@@ -48,8 +50,6 @@ def _make_class():
             self.root = Path(root)
             meta_path = self.root / "meta.json"
             if not meta_path.exists():
-                from ..errors import RoadtwinError
-
                 raise RoadtwinError(f"{self.root}: no meta.json (not a roadtwin render output)")
             self.meta = json.loads(meta_path.read_text())
             self.frames = self.meta["frames"]
@@ -59,8 +59,6 @@ def _make_class():
                 modalities = available
             missing = [m for m in modalities if m not in available]
             if missing:
-                from ..errors import RoadtwinError
-
                 raise RoadtwinError(f"{self.root}: modality {missing[0]!r} not written (available: {', '.join(available)})")
             self.modalities = list(modalities)
             self.transform = transform
@@ -81,13 +79,4 @@ def _make_class():
     return RenderDataset
 
 
-_cls = None
-
-
-def __getattr__(name):
-    global _cls
-    if name == "RenderDataset":
-        if _cls is None:
-            _cls = _make_class()
-        return _cls
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_classes(__name__, {"RenderDataset": _make_class})

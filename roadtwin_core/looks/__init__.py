@@ -9,6 +9,8 @@ centreline get lane-aligned st (u along travel, v across, v = 0.5 on the centrel
 tire-polished wheel paths of the asphalt textures lie under the wheels; everything else is
 world-planar (st = xy / ST_TILE_M).
 """
+import importlib
+
 from .catalog import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL_MATERIALS, ROAD_MATERIAL_VARIANTS,
                       ST_TILE_M, VERGE_MATERIAL_VARIANTS, MaterialSpec, all_materials, defect_material, kind_material,
                       marking_material)
@@ -19,8 +21,6 @@ _LAZY = {"write_textures": ".textures", "write_textures_cached": ".cache"}
 def __getattr__(name: str):
     """The texture generators import scipy.fft and more (~0.2 s): only for whoever makes textures."""
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name], __name__), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 

@@ -1,11 +1,12 @@
 """Texture sets cached by seed: a compose copies ~14 MB of PNG instead of spending ~3 s of CPU.
 
 Why a cache and not a shared folder: every town folder stays self-contained (textures written
-next to the stage, DESIGN.md), so a cached set is *copied* in. The key is the seed, the size,
-and a fingerprint of the code that makes the bytes (every module of this package, plus the
-numpy, Pillow and zlib versions and the PNG encoder that generate and encode them), so a changed generator or
-encoder misses the cache instead of serving stale textures. Each cached file's SHA-256 is in
-the manifest and checked on every copy; a damaged or partial entry is regenerated.
+next to the stage, docs/architecture.md#looks-and-texture-coordinates), so a cached set is
+*copied* in. The key is the seed, the size, and a fingerprint of the code that makes the bytes
+(every module of this package, plus the numpy, Pillow and zlib versions and the PNG encoder that
+generate and encode them), so a changed generator or encoder misses the cache instead of serving
+stale textures. Each cached file's SHA-256 is in the manifest and checked on every copy; a
+damaged or partial entry is regenerated.
 
 Where: ``$ROADTWIN_CACHE_DIR/textures`` when that is set (an empty value turns the cache off),
 else the user cache dir (``~/.cache/roadtwin/textures`` on Linux).
@@ -21,6 +22,14 @@ import zlib
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy
+import PIL
+
+try:                    # not a declared dependency: the XDG folder when it is missing
+    import platformdirs
+except ImportError:
+    platformdirs = None
+
 from .catalog import MaterialSpec
 from .textures import DEFAULT_SIZE, png_encoder, write_textures
 
@@ -32,20 +41,15 @@ def cache_root() -> Path | None:
     env = os.environ.get("ROADTWIN_CACHE_DIR")
     if env is not None:
         return Path(env) / "textures" if env.strip() else None
-    try:
-        import platformdirs
-
+    if platformdirs is not None:
         base = Path(platformdirs.user_cache_dir("roadtwin"))
-    except ImportError:
+    else:
         base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "roadtwin"
     return base / "textures"
 
 
 def code_fingerprint() -> str:
     """Hash of the texture code (this package's sources) and of the libraries that shape the bytes."""
-    import numpy
-    import PIL
-
     h = hashlib.sha256()
     for src in sorted(Path(__file__).parent.glob("*.py")):
         h.update(src.name.encode() + b"\0" + src.read_bytes() + b"\0")

@@ -17,6 +17,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+import PIL
+from PIL import Image
 
 from ..errors import RoadtwinError
 from . import _asphalt, _finishes, _masonry, _roadside
@@ -121,8 +123,6 @@ def png_encoder() -> str:
     try:
         import cv2
     except ImportError:
-        import PIL
-
         return f"pillow {PIL.__version__}"
     return f"opencv {cv2.__version__}"
 
@@ -136,8 +136,6 @@ def _save(path: Path, img: np.ndarray) -> None:
     try:
         import cv2
     except ImportError:
-        from PIL import Image
-
         Image.fromarray(a).save(path, format="PNG", compress_level=PNG_COMPRESS_LEVEL, optimize=False)
         return
     if a.ndim == 3:

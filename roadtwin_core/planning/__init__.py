@@ -1,11 +1,11 @@
 """Defect-aware path planning (the paper's decision-making study): footprint, collision, metrics.
 
-Everything here works on a :class:`~roadtwin_core.planning.grid.GridMap`; planners are plugins
-(``roadtwin_register_planners``) found by name, and use only the names in ``__all__`` and
-``grid``. The vehicle is :class:`roadtwin_core.vehicle.VehicleParams` (the one vehicle
-description); planning sees it through ``VehicleParams.footprint()``. What ``roadtwin plan``
-does with all this (outputs, plots, USD curves, bypass-or-cross decisions) lives in
-:mod:`roadtwin_core.apps.plan`.
+Everything here works on a :class:`GridMap` (made from a town by :func:`rasterize` or
+:func:`rasterize_scene`); planners are plugins (``roadtwin_register_planners``) found by name, and
+use only the names in ``__all__``. The vehicle is :class:`roadtwin_core.vehicle.VehicleParams`
+(the one vehicle description); planning sees it through ``VehicleParams.footprint()``. What
+``roadtwin plan`` does with all this (outputs, plots, USD curves, bypass-or-cross decisions) lives
+in :mod:`roadtwin_core.apps.plan`.
 
 Conventions
 -----------
@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from .collision import COLLISION_MODES, CollisionChecker, check_endpoint
 from .footprint import WHEEL_NAMES, Footprint, transform, wrap_angle
+from .grid import GridMap, rasterize, rasterize_scene
 from .metrics import PathMetrics, heading_changes, path_metrics, resample_by_length
 from .reference import (drivable_distance, lane_headings, polyline_length, reference_frame, reference_path,
                         segment_drivable)
@@ -49,6 +50,7 @@ from .run import PlanFailure, PlannerOutput, PlanResult, parse_pose, plan_path
 
 __all__ = [
     "COLLISION_MODES", "CollisionChecker", "check_endpoint", "WHEEL_NAMES", "Footprint", "transform", "wrap_angle",
+    "GridMap", "rasterize", "rasterize_scene",
     "PathMetrics", "heading_changes", "path_metrics", "resample_by_length", "drivable_distance", "lane_headings",
     "polyline_length", "reference_frame", "reference_path", "segment_drivable", "PlanFailure", "PlannerOutput",
     "PlanResult", "parse_pose", "plan_path",

@@ -5,6 +5,7 @@ import math
 from typing import Sequence
 
 import numpy as np
+from scipy import ndimage
 
 from ..errors import RoadtwinError
 from .grid import GridMap
@@ -84,8 +85,6 @@ class CollisionChecker:
         if len(poses) == 0:
             return np.zeros(0, bool)
         if self._clear is None:
-            from scipy import ndimage
-
             self._clear = ndimage.distance_transform_edt(~self._blocked) * self._res
         free = np.ones(len(poses), bool)
         ix, iy = self._cells(transform(poses, self._disc_centres))

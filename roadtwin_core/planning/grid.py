@@ -1,4 +1,5 @@
-"""Grid maps of a composed town for path planning (DESIGN.md: town stage -> rasterize 0.2 m).
+"""Grid maps of a composed town for path planning (docs/architecture.md#data-flow:
+town stage -> rasterize 0.2 m).
 
 A :class:`GridMap` is a set of aligned 2D arrays over an axis-aligned window of the town, one
 cell per ``resolution`` metres (0.2 m as in Zhang et al.). Cell ``[iy, ix]`` covers
@@ -23,14 +24,17 @@ bounding box is tested with barycentric coordinates in one vectorised pass, in c
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ..errors import RoadtwinError
+from ..usd.town_reader import TownScene, load_town
 
 DRIVABLE_KINDS = ("driving", "junction")
 MAX_CELLS = 25_000_000
@@ -148,8 +152,6 @@ class GridMap:
         if not self.defect.any():
             return np.full(xy.shape[:-1], np.inf)
         if not hasattr(self, "_tree"):
-            from scipy.spatial import cKDTree
-
             self._tree = cKDTree(self.defect_centres())
         d, _ = self._tree.query(xy.reshape(-1, 2))
         return d.reshape(xy.shape[:-1])
@@ -250,8 +252,6 @@ def _triangles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
 def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVABLE_KINDS,
                     pad_m: float = 1.0) -> GridMap:
     """Grid maps of a :class:`roadtwin_core.usd.TownScene` (see module docstring)."""
-    import math
-
     if not (isinstance(resolution, (int, float)) and math.isfinite(resolution) and resolution > 0):
         raise RoadtwinError(f"grid resolution must be a positive number of metres, got {resolution}")
     kinds = tuple(kinds)
@@ -260,7 +260,33 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
         found = sorted({r.kind for r in scene.roads}) or ["none"]
         raise RoadtwinError(f"{scene.source}: no road segments of kind {', '.join(kinds)} to plan on "
                             f"(found: {', '.join(found)})")
+    origin, shape = _window(scene, roads, resolution, pad_m)
+    n = shape[0] * shape[1]
+
+    height = np.full(n, np.nan)
+    road = np.zeros(n, bool)
+    tris = np.concatenate([_triangles(r.vertices, r.faces) for r in roads])
+    cells, _, z = rasterize_triangles(tris, origin, resolution, shape)
+    road[cells] = True
+    height[cells] = z
+
     road_names = {r.path.rsplit("/", 1)[-1] for r in roads}
+    found = _DefectCells.of(scene.defects, road_names, origin, resolution, shape)
+    defect = found.defect
+    drivable = road | defect
+    height[defect] = found.surface[defect]
+
+    defect2 = defect.reshape(shape)
+    index2 = found.index.reshape(shape)
+    h2 = height.reshape(shape)
+    depth = _defect_depths(index2, (road & ~defect).reshape(shape), h2, origin, resolution, found.depth_attr)
+    return GridMap(origin, float(resolution), drivable.reshape(shape), defect2, depth,
+                   h2.astype(np.float32), distance_field(defect2, resolution), index2, found.ids, found.types,
+                   source=str(scene.source), name=scene.name, metadata=dict(scene.metadata))
+
+
+def _window(scene, roads, resolution: float, pad_m: float) -> tuple[tuple[float, float], tuple[int, int]]:
+    """Origin and (ny, nx) of the grid over the roads' bounding box, ``pad_m`` around it."""
     pts = np.concatenate([r.vertices[:, :2] for r in roads])
     # Cell centres sit a quarter cell off the resolution grid (0.05 + 0.2 k m at 0.2 m), so road
     # edges at round coordinates (multiples of 0.1 m) never pass exactly through a cell centre,
@@ -271,60 +297,72 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
     if nx * ny > MAX_CELLS:
         raise RoadtwinError(f"{scene.source}: a {resolution} m grid over {hi[0] - lo[0]:.0f} x {hi[1] - lo[1]:.0f} m "
                             f"needs {nx * ny / 1e6:.0f}M cells (limit {MAX_CELLS / 1e6:.0f}M); use a coarser resolution")
-    origin = (float(lo[0]), float(lo[1]))
-    shape = (ny, nx)
-    n = nx * ny
+    return (float(lo[0]), float(lo[1])), (ny, nx)
 
-    height = np.full(n, np.nan)
-    road = np.zeros(n, bool)
-    tris = np.concatenate([_triangles(r.vertices, r.faces) for r in roads])
+
+@dataclass
+class _DefectCells:
+    """The defects lying on the lanes, as flat cell arrays: which cells, which defect, the
+    defect surface height there, and per defect its id, type and stored depth attribute."""
+
+    defect: np.ndarray                   # (n,) bool
+    index: np.ndarray                    # (n,) int32, -1 outside defects
+    surface: np.ndarray                  # (n,) float, NaN outside defects
+    ids: list[str]
+    types: list[str]
+    depth_attr: list[float]
+
+    @classmethod
+    def of(cls, defects, road_names: set[str], origin: tuple[float, float], resolution: float,
+           shape: tuple[int, int]) -> _DefectCells:
+        n = shape[0] * shape[1]
+        out = cls(np.zeros(n, bool), np.full(n, -1, np.int32), np.full(n, np.nan), [], [], [])
+        for d in defects:
+            pieces = [p for p in d.pieces if len(p.faces) and p.path.rsplit("/", 1)[-1] in road_names]
+            if not pieces:
+                continue  # a defect on a sidewalk (or with no baked geometry) is not on the lanes
+            k = len(out.ids)
+            out.ids.append(d.id)
+            out.types.append(d.defect_type)
+            out.depth_attr.append(float(d.attributes.get("depthM", 0.0) or 0.0))
+            cells, z = _defect_cells(pieces, origin, resolution, shape)
+            if len(cells) == 0:
+                continue
+            out.defect[cells] = True
+            out.index[cells] = k
+            out.surface[cells] = z
+        return out
+
+
+def _defect_cells(pieces, origin: tuple[float, float], resolution: float,
+                  shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Flat cell indices of one defect and its surface height in each."""
+    tris = np.concatenate([_triangles(p.vertices, p.faces) for p in pieces])
     cells, _, z = rasterize_triangles(tris, origin, resolution, shape)
-    road[cells] = True
-    height[cells] = z
+    area = float(np.abs(_signed_areas(tris)).sum())
+    perimeter = _boundary_length(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
+    if 2 * area < resolution * perimeter:
+        # Thinner than a cell on average (a crack): centre sampling would lose most of it, so
+        # every cell one of its vertices falls in counts, at the height of its lowest vertex.
+        ny, nx = shape
+        v = np.concatenate([p.vertices for p in pieces])
+        ix = np.floor((v[:, 0] - origin[0]) / resolution).astype(np.int64)
+        iy = np.floor((v[:, 1] - origin[1]) / resolution).astype(np.int64)
+        ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
+        vc = iy[ok] * nx + ix[ok]
+        low = np.full(nx * ny, np.inf)
+        np.minimum.at(low, vc, v[ok, 2])
+        extra = np.setdiff1d(np.unique(vc), cells)
+        cells, z = np.concatenate([cells, extra]), np.concatenate([z, low[extra]])
+    return cells, z
 
-    defect = np.zeros(n, bool)
-    index = np.full(n, -1, np.int32)
-    surface = np.full(n, np.nan)
-    ids, types, depth_attr = [], [], []
-    for d in scene.defects:
-        pieces = [p for p in d.pieces if len(p.faces) and p.path.rsplit("/", 1)[-1] in road_names]
-        if not pieces:
-            continue  # a defect on a sidewalk (or with no baked geometry) is not on the lanes
-        k = len(ids)
-        ids.append(d.id)
-        types.append(d.defect_type)
-        depth_attr.append(float(d.attributes.get("depthM", 0.0) or 0.0))
-        tris = np.concatenate([_triangles(p.vertices, p.faces) for p in pieces])
-        cells, _, z = rasterize_triangles(tris, origin, resolution, shape)
-        area = float(np.abs(_signed_areas(tris)).sum())
-        perimeter = _boundary_length(tris.reshape(-1, 3), np.arange(3 * len(tris)).reshape(-1, 3))
-        if 2 * area < resolution * perimeter:
-            # Thinner than a cell on average (a crack): centre sampling would lose most of it, so
-            # every cell one of its vertices falls in counts, at the height of its lowest vertex.
-            v = np.concatenate([p.vertices for p in pieces])
-            ix = np.floor((v[:, 0] - origin[0]) / resolution).astype(np.int64)
-            iy = np.floor((v[:, 1] - origin[1]) / resolution).astype(np.int64)
-            ok = (ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny)
-            vc = iy[ok] * nx + ix[ok]
-            low = np.full(n, np.inf)
-            np.minimum.at(low, vc, v[ok, 2])
-            extra = np.setdiff1d(np.unique(vc), cells)
-            cells, z = np.concatenate([cells, extra]), np.concatenate([z, low[extra]])
-        if len(cells) == 0:
-            continue
-        defect[cells] = True
-        index[cells] = k
-        surface[cells] = z
-    drivable = road | defect
-    height[defect] = surface[defect]
 
-    defect2 = defect.reshape(shape)
-    index2 = index.reshape(shape)
-    depth = np.zeros(shape, np.float32)
-    road2 = (road & ~defect).reshape(shape)
-    h2 = height.reshape(shape)
-    # Depth: a plane fitted to the road cells in a ring around each defect, minus its surface.
-    for k, box in enumerate(ndimage.find_objects(index2 + 1, max_label=len(ids))):
+def _defect_depths(index2: np.ndarray, road2: np.ndarray, h2: np.ndarray, origin: tuple[float, float],
+                   resolution: float, depth_attr: list[float]) -> np.ndarray:
+    """Depth: a plane fitted to the road cells in a ring around each defect, minus its surface."""
+    ny, nx = index2.shape
+    depth = np.zeros(index2.shape, np.float32)
+    for k, box in enumerate(ndimage.find_objects(index2 + 1, max_label=len(depth_attr))):
         if box is None:
             continue
         r0, r1 = max(box[0].start - 4, 0), min(box[0].stop + 4, ny)
@@ -345,16 +383,11 @@ def rasterize_scene(scene, resolution: float = 0.2, kinds: Iterable[str] = DRIVA
         else:  # no road around it: fall back on the stored attribute
             base = sh[sub] + depth_attr[k]
         depth[r0:r1, c0:c1][sub] = (base - sh[sub]).astype(np.float32)
-
-    return GridMap(origin, float(resolution), drivable.reshape(shape), defect2, depth,
-                   h2.astype(np.float32), distance_field(defect2, resolution), index2, ids, types,
-                   source=str(scene.source), name=scene.name, metadata=dict(scene.metadata))
+    return depth
 
 
 def rasterize(stage, resolution: float = 0.2, kinds: Iterable[str] = DRIVABLE_KINDS) -> GridMap:
     """Grid maps of a composed town: a ``town.usda`` path, its directory, or a loaded TownScene."""
-    from ..usd.town_reader import TownScene, load_town
-
     if not isinstance(stage, TownScene):
         stage = Path(stage)
         if stage.is_dir():

@@ -6,6 +6,8 @@ import math
 from typing import Sequence
 
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
 
 from ..errors import RoadtwinError
 from .grid import GridMap
@@ -15,9 +17,6 @@ def drivable_distance(grid: GridMap, xy: Sequence[float], mask: np.ndarray | Non
                       predecessors: bool = False):
     """8-connected shortest distance (m) over ``mask`` (default: drivable) from the cell of ``xy``
     to every cell (+inf where unreachable); with ``predecessors`` also the predecessor array."""
-    from scipy.sparse import csr_matrix
-    from scipy.sparse.csgraph import dijkstra
-
     mask = grid.drivable if mask is None else mask
     ny, nx = mask.shape
     ix, iy = grid.world_to_cell(np.asarray(xy, dtype=np.float64)[:2])

@@ -9,6 +9,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
+from ..params import make_params
+from ..plugins import get_plugin_manager
 from .grid import GridMap
 from .collision import CollisionChecker, check_endpoint
 from .footprint import Footprint, wrap_angle
@@ -72,11 +74,7 @@ def plan_path(grid: GridMap, planner: Any, start: Sequence[float], goal: Sequenc
               footprint: Footprint, collision: str = "wheel", params: dict[str, Any] | None = None,
               seed: int = 0, reference_length: float | None = None, pm=None) -> PlanResult:
     """Run one planner (a registered name or an object) and measure its path."""
-    from ..params import make_params
-
     if isinstance(planner, str):
-        from ..plugins import get_plugin_manager
-
         planner = (pm or get_plugin_manager()).get("planners", planner)
     checker = CollisionChecker(grid, footprint, collision)
     start = tuple(float(v) for v in start)

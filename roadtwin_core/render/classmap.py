@@ -47,8 +47,8 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
+from .scene import IGNORE_INDEX
 
-IGNORE = 255
 RULES = ("ego",)
 
 
@@ -82,11 +82,11 @@ class ClassMap:
 
     def lookup_tables(self, stage_labels: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
         """Two 256-entry uint8 tables, stage label id -> dataset id: outside and inside the ego mask."""
-        if len(stage_labels) > IGNORE:
+        if len(stage_labels) > IGNORE_INDEX:
             raise RoadtwinError(f"{len(stage_labels)} stage labels do not fit uint8 (255 is the ignore index)")
         cid = {c: i for i, c in enumerate(self.classes)}
-        fallback = IGNORE if self.unknown is None else cid[self.unknown]
-        plain = np.full(256, IGNORE, dtype=np.uint8)
+        fallback = IGNORE_INDEX if self.unknown is None else cid[self.unknown]
+        plain = np.full(256, IGNORE_INDEX, dtype=np.uint8)
         for i, label in enumerate(stage_labels):
             plain[i] = cid[self.plain[label]] if label in self.plain else fallback
         inside = plain.copy()
@@ -103,7 +103,7 @@ class ClassMap:
         labels = np.asarray(labels)
         if labels.size and labels.min() < 0:
             raise RoadtwinError(f"{self.source}: negative label ids")
-        bad = (labels >= len(stage_labels)) & (labels != IGNORE)
+        bad = (labels >= len(stage_labels)) & (labels != IGNORE_INDEX)
         if bad.any():
             raise RoadtwinError(f"{self.source}: label id {int(labels[bad].flat[0])} outside the stage's "
                                 f"{len(stage_labels)} labels")
@@ -186,7 +186,7 @@ def parse_class_map(text: str, source: str = "<class map>") -> ClassMap:
         raise RoadtwinError(f"{source}: 'classes' must be a non-empty list of class names")
     if len(set(classes)) != len(classes):
         raise RoadtwinError(f"{source}: 'classes' lists a class twice")
-    if len(classes) > IGNORE:
+    if len(classes) > IGNORE_INDEX:
         raise RoadtwinError(f"{source}: {len(classes)} classes do not fit uint8 (255 is the ignore index)")
     unknown = data.get("unknown", "ignore")
     if unknown != "ignore" and unknown not in classes:

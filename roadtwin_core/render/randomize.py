@@ -27,6 +27,7 @@ import math
 from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
+from PIL import Image
 
 from ..errors import RoadtwinError
 from .cameras import Camera
@@ -235,8 +236,6 @@ def sensor_noise(linear: np.ndarray, gain: float, read_noise: float, rng: np.ran
 
 def encode_jpeg(image8: np.ndarray, quality: int) -> bytes:
     """JPEG bytes (Pillow, baseline, 4:2:0, no optimisation: same input, same bytes)."""
-    from PIL import Image
-
     if not 1 <= int(quality) <= 100:
         raise RoadtwinError(f"JPEG quality must be in 1..100, got {quality}")
     buf = io.BytesIO()
@@ -246,8 +245,6 @@ def encode_jpeg(image8: np.ndarray, quality: int) -> bytes:
 
 
 def decode_jpeg(data: bytes) -> np.ndarray:
-    from PIL import Image
-
     return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
 
 

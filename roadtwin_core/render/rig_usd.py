@@ -1,9 +1,10 @@
 """Camera rigs as ``UsdGeom.Camera`` prims: written into a stage's ``layers/cameras.usda`` and
 read back as roadtwin cameras, so a stage carries its sensors and any USD tool sees them.
 
-Why a layer of its own: cameras are one concern among the town's layers (DESIGN: each concern its
-own layer so a user can mute or swap it); ``add_rig_cameras`` creates ``layers/cameras.usda``
-beside the stage and inserts it as the strongest sublayer of the stage's root layer.
+Why a layer of its own: cameras are one concern among the town's layers
+(docs/architecture.md#layers-of-a-town-stage: each concern its own layer so a user can mute or
+swap it); ``add_rig_cameras`` creates ``layers/cameras.usda`` beside the stage and inserts it as
+the strongest sublayer of the stage's root layer.
 
 USD conventions used (UsdGeomCamera docs):
 
@@ -27,6 +28,8 @@ import numpy as np
 
 from ..errors import RoadtwinError
 from .cameras import RIG_PRESETS, Camera, Intrinsics, RigPreset, look_from
+from .scene import GroundSampler, build_render_mesh, stage_lanes
+from .view_sampler import chain_lanes, road_attitude
 
 FILMBACK_WIDTH_MM = 36.0
 CLIPPING_RANGE_M = (0.05, 1000.0)
@@ -68,9 +71,7 @@ def lens_tenths(preset: RigPreset, meters_per_unit: float = 1.0) -> dict[str, fl
 def default_pose(stage_path: str | Path, preset: RigPreset, at_s: float = 20.0) -> np.ndarray:
     """A pose for the rig on the stage's first driving lane (lanes chained), ``at_s`` m along it,
     the rig's height above the road under the wheels, its pitch, looking along the lane."""
-    from ..usd.town_reader import load_town
-    from .scene import GroundSampler, build_render_mesh, stage_lanes
-    from .view_sampler import chain_lanes, road_attitude
+    from ..usd.town_reader import load_town   # pxr stays out of render's import (GPU machines have no USD)
 
     lanes = chain_lanes(stage_lanes(stage_path))
     if not lanes:

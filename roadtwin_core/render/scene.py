@@ -176,7 +176,7 @@ def _jsonable(v):
 
 def render_material(mat) -> RenderMaterial:
     """A stage material (:class:`roadtwin_core.usd.looks_reader.TownMaterial`) as images."""
-    from ..usd.looks_reader import decode_texture
+    from ..usd.looks_reader import decode_texture   # roadtwin_core.usd imports pxr; GPU machines have no USD
 
     if mat.diffuse_texture is not None:
         diffuse = decode_texture(mat.diffuse_texture)

@@ -52,7 +52,7 @@ def _short(name: str) -> str:
 
 def _load_variant(textures: Path, name: str) -> RenderMaterial | None:
     """A catalog material from the stage's textures/ folder (the looks writer's file names)."""
-    from ..usd.looks_reader import TextureRef, decode_texture
+    from ..usd.looks_reader import TextureRef, decode_texture   # pxr (via roadtwin_core.usd): GPU side has no USD
 
     diffuse = textures / f"{name}_diffuse.png"
     if not diffuse.is_file():

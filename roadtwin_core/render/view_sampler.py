@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import RoadtwinError
 from .cameras import Camera, GroundFn, Intrinsics, Lane, look_from, vehicle_height
+from .scene import stage_lanes
 
 TARGET_TYPES = ("pothole", "crack")
 WHEELBASE_HALF_M, TRACK_HALF_M = 1.3, 0.8     # as cameras.vehicle_height samples the road
@@ -284,6 +285,29 @@ def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn
     defect is in view, falling back to the last draw after ``max_tries``). Targets are defects
     within ``max_lateral_m`` of a lane centreline (own lane, the opposing one, the shoulders);
     each is seen from every lane it lies near, in that lane's travel direction."""
+    _check_view_options(rig, jitter, n, share, near_m, far_m, background, seed)
+    lanes = [l for l in lanes if l.length > 2 * WHEELBASE_HALF_M]
+    if not lanes:
+        raise RoadtwinError("no lane centreline to place cameras on")
+    intr = rig.intrinsics()
+    targets = _Targets.on(lanes, defects, target_types, near_m, max_lateral_m)
+    if share > 0 and n > 0 and not len(targets.defect):
+        raise RoadtwinError(f"no {' or '.join(target_types)} lies within {max_lateral_m} m of a lane: "
+                            f"cannot aim {share:.0%} of the views at defects")
+    drawer = _ViewDrawer(lanes, targets, ground, rig, jitter, near_m, far_m, background, max_tries)
+    views = []
+    for i in range(start, start + n):
+        rng = np.random.default_rng([seed, i])
+        m, j, lane_i, s, target, seen = drawer.choose(i, rng, aimed=share > 0 and _is_targeted(i, share))
+        lane = lanes[lane_i]
+        seg = lane.segment_at(s) if isinstance(lane, ChainedLane) and lane.segments else lane.id
+        views.append(View(i, Camera(intr, m), lane.id, seg, s, target,
+                          tuple(targets.ids[k] for k in np.nonzero(seen)[0]), j))
+    return views
+
+
+def _check_view_options(rig: ViewRig, jitter: Jitter, n: int, share: float, near_m: float, far_m: float,
+                        background: str, seed: int) -> None:
     rig.check()
     jitter.check()
     if n < 0:
@@ -296,37 +320,96 @@ def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn
         raise RoadtwinError(f"background views must be 'uniform' or 'clear', got {background!r}")
     if seed < 0:
         raise RoadtwinError(f"seed must be >= 0, got {seed}")
-    lanes = [l for l in lanes if l.length > 2 * WHEELBASE_HALF_M]
-    if not lanes:
-        raise RoadtwinError("no lane centreline to place cameras on")
-    intr = rig.intrinsics()
-    lengths = np.array([l.length for l in lanes])
-    is_target = np.isin(np.asarray(defects.types, dtype=object), list(target_types)) if len(defects.ids) else np.zeros(0, bool)
-    target_xy = defects.xy[is_target]
-    target_ids = [i for i, t in zip(defects.ids, is_target) if t]
-    # Every (defect, lane) pair a targeted frame can use: the defect's arc length on the lane.
-    cand_defect, cand_lane, cand_s = [], [], []
-    for li, lane in enumerate(lanes):
-        if not len(target_xy):
-            break
-        s, lat = project_to_lane(lane, target_xy)
-        ok = (np.abs(lat) <= max_lateral_m) & (s > near_m + 1.0)
-        cand_defect.append(np.nonzero(ok)[0])
-        cand_lane.append(np.full(int(ok.sum()), li))
-        cand_s.append(s[ok])
-    cand_defect = np.concatenate(cand_defect) if cand_defect else np.zeros(0, int)
-    cand_lane = np.concatenate(cand_lane) if cand_lane else np.zeros(0, int)
-    cand_s = np.concatenate(cand_s) if cand_s else np.zeros(0)
-    if share > 0 and n > 0 and not len(cand_defect):
-        raise RoadtwinError(f"no {' or '.join(target_types)} lies within {max_lateral_m} m of a lane: "
-                            f"cannot aim {share:.0%} of the views at defects")
 
-    def draw(rng, lane_i: int, s: float) -> tuple[np.ndarray, dict] | None:
-        lane = lanes[lane_i]
+
+@dataclass
+class _Targets:
+    """The target-type defects (positions, ids) and every (defect, lane) pair a targeted frame
+    can use: ``defect`` (index into ``xy``), ``lane`` and ``s``, the defect's arc length on it."""
+
+    xy: np.ndarray
+    ids: list[str]
+    defect: np.ndarray
+    lane: np.ndarray
+    s: np.ndarray
+
+    @classmethod
+    def on(cls, lanes: Sequence[Lane], defects: DefectTargets, target_types: Sequence[str], near_m: float,
+           max_lateral_m: float) -> _Targets:
+        is_target = (np.isin(np.asarray(defects.types, dtype=object), list(target_types)) if len(defects.ids)
+                     else np.zeros(0, bool))
+        target_xy = defects.xy[is_target]
+        target_ids = [i for i, t in zip(defects.ids, is_target) if t]
+        cand_defect, cand_lane, cand_s = [], [], []
+        for li, lane in enumerate(lanes):
+            if not len(target_xy):
+                break
+            s, lat = project_to_lane(lane, target_xy)
+            ok = (np.abs(lat) <= max_lateral_m) & (s > near_m + 1.0)
+            cand_defect.append(np.nonzero(ok)[0])
+            cand_lane.append(np.full(int(ok.sum()), li))
+            cand_s.append(s[ok])
+        return cls(target_xy, target_ids,
+                   np.concatenate(cand_defect) if cand_defect else np.zeros(0, int),
+                   np.concatenate(cand_lane) if cand_lane else np.zeros(0, int),
+                   np.concatenate(cand_s) if cand_s else np.zeros(0))
+
+
+@dataclass
+class _ViewDrawer:
+    """One frame's random draws, in a fixed order per rng: the spot (lane and arc length), the
+    jittered camera there, and what it sees; redrawn until the frame's role is met."""
+
+    lanes: list[Lane]
+    targets: _Targets
+    ground: GroundFn
+    rig: ViewRig
+    jitter: Jitter
+    near_m: float
+    far_m: float
+    background: str
+    max_tries: int
+
+    def __post_init__(self):
+        self.lengths = np.array([l.length for l in self.lanes])
+
+    def choose(self, i: int, rng, aimed: bool) -> tuple:
+        """(cam_to_world, jitter, lane index, s, target id or None, seen mask) of frame i."""
+        t = self.targets
+        chosen = None
+        for _ in range(self.max_tries):
+            if aimed:
+                c = int(rng.integers(len(t.defect)))
+                lane_i = int(t.lane[c])
+                s = float(t.s[c]) - rng.uniform(self.near_m + 0.5, self.far_m - 0.5)
+                if s < WHEELBASE_HALF_M:
+                    continue
+            else:
+                lane_i = int(rng.choice(len(self.lanes), p=self.lengths / self.lengths.sum()))
+                s = float(rng.uniform(WHEELBASE_HALF_M, self.lanes[lane_i].length - WHEELBASE_HALF_M))
+            got = self.camera(rng, lane_i, s)
+            if got is None:
+                continue
+            m, j = got
+            seen = in_view(m, t.xy, self.rig.hfov_deg, self.near_m, self.far_m) if len(t.xy) else np.zeros(0, bool)
+            if aimed and not seen[t.defect[c]]:
+                continue
+            chosen = (m, j, lane_i, s, t.ids[t.defect[c]] if aimed else None, seen)
+            if aimed or self.background == "uniform" or not seen.any():
+                break
+        if chosen is None:
+            what = "aim a view at a defect" if aimed else "place a view on a lane (the road is missing under them)"
+            raise RoadtwinError(f"view {i}: could not {what} in {self.max_tries} tries")
+        return chosen
+
+    def camera(self, rng, lane_i: int, s: float) -> tuple[np.ndarray, dict] | None:
+        """The rig on the road at ``s`` along the lane, jittered; None where there is no road."""
+        jitter, rig = self.jitter, self.rig
+        lane = self.lanes[lane_i]
         heading = float(lane.heading(np.array([s]), window=2.0)[0])
         lat = rng.uniform(-jitter.lateral_m, jitter.lateral_m)
         xy = lane.at(np.array([s]))[0] + lat * np.array([-math.sin(heading), math.cos(heading)])
-        z, road_pitch, road_roll = road_attitude(ground, xy, heading)
+        z, road_pitch, road_roll = road_attitude(self.ground, xy, heading)
         if not math.isfinite(z):
             return None
         j = {"height_m": rng.uniform(-jitter.height_m, jitter.height_m),
@@ -339,48 +422,11 @@ def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn
         m = look_from((xy[0], xy[1], z + rig.mount_height_m + j["height_m"]), yaw, pitch, roll)
         return m, {k: round(float(v), 6) for k, v in j.items()}
 
-    views = []
-    for i in range(start, start + n):
-        rng = np.random.default_rng([seed, i])
-        aimed = share > 0 and _is_targeted(i, share)
-        chosen = None
-        for _ in range(max_tries):
-            if aimed:
-                c = int(rng.integers(len(cand_defect)))
-                lane_i = int(cand_lane[c])
-                s = float(cand_s[c]) - rng.uniform(near_m + 0.5, far_m - 0.5)
-                if s < WHEELBASE_HALF_M:
-                    continue
-            else:
-                lane_i = int(rng.choice(len(lanes), p=lengths / lengths.sum()))
-                s = float(rng.uniform(WHEELBASE_HALF_M, lanes[lane_i].length - WHEELBASE_HALF_M))
-            got = draw(rng, lane_i, s)
-            if got is None:
-                continue
-            m, j = got
-            seen = in_view(m, target_xy, rig.hfov_deg, near_m, far_m) if len(target_xy) else np.zeros(0, bool)
-            if aimed and not seen[cand_defect[c]]:
-                continue
-            chosen = (m, j, lane_i, s, target_ids[cand_defect[c]] if aimed else None, seen)
-            if aimed or background == "uniform" or not seen.any():
-                break
-        if chosen is None:
-            what = "aim a view at a defect" if aimed else "place a view on a lane (the road is missing under them)"
-            raise RoadtwinError(f"view {i}: could not {what} in {max_tries} tries")
-        m, j, lane_i, s, target, seen = chosen
-        lane = lanes[lane_i]
-        seg = lane.segment_at(s) if isinstance(lane, ChainedLane) and lane.segments else lane.id
-        views.append(View(i, Camera(intr, m), lane.id, seg, s, target,
-                          tuple(target_ids[k] for k in np.nonzero(seen)[0]), j))
-    return views
-
 
 def stage_views(stage_path, town, ground: GroundFn, n: int, **options) -> tuple[list[View], list[ChainedLane]]:
     """What ``roadtwin render --views defects:SHARE`` does: the stage's driving lanes chained,
     its defects as targets, then :func:`sample_views` (``options`` are passed on). Returns the
     views and the chained lanes (the ego-lane labeller takes ``lane_ahead`` of a view's lane)."""
-    from .scene import stage_lanes
-
     lanes = chain_lanes(stage_lanes(stage_path))
     if not lanes:
         raise RoadtwinError(f"{stage_path}: no driving lane centrelines (roadtwin:segment:centerline) to place views on")

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 import triangle
+from scipy.spatial import cKDTree
 from shapely.geometry import LineString, Polygon
 from shapely.ops import substring
 
@@ -198,8 +199,6 @@ class RoadPatch:
         z = _heights_on(xy, self.tris, pair_p, pair_t)
         missing = np.isnan(z)
         if missing.any():
-            from scipy.spatial import cKDTree
-
             pts = self.tris.reshape(-1, 3)
             _, j = cKDTree(pts[:, :2]).query(xy[missing])
             z[missing] = pts[j, 2]

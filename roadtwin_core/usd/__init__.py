@@ -1,4 +1,4 @@
-"""USD at the edges: layouts in, town stages and library assets out (DESIGN.md conventions)."""
+"""USD at the edges: layouts in, town stages and library assets out (docs/architecture.md#usd-conventions)."""
 from .layout_io import read_layout, write_layout
 from .library import read_defect_asset, write_defect_asset
 from .stage import apply_labels, fan_corners, new_stage, read_mesh, safe_prim_name, set_attrs, set_kind, write_mesh

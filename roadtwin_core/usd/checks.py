@@ -145,20 +145,3 @@ class FaceBudget:
         if self.used > self.total:
             raise RoadtwinError(f"{self.source}: more than {self.total:,} triangles in all (coarsen the meshes, "
                                 "or raise ROADTWIN_MAX_FACES)")
-
-
-def check_stage_meshes(stage: Usd.Stage, path: str | Path) -> int:
-    """Every Mesh of a stage (instance proxies included) reads cleanly: topology, finite points
-    near the origin, triangle budget. Returns the number of meshes. Exporters and validators
-    then never meet geometry that would crash them with an error naming no file."""
-    from pxr import UsdGeom
-
-    from .stage import read_mesh
-
-    budget = FaceBudget(path)
-    n = 0
-    for prim in Usd.PrimRange(stage.GetPseudoRoot(), Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
-        if prim.IsA(UsdGeom.Mesh):
-            read_mesh(UsdGeom.Mesh(prim), budget=budget)
-            n += 1
-    return n

@@ -16,11 +16,27 @@ from ..model import DefectModel
 from .checks import open_stage
 from .stage import _array, apply_labels, new_stage, read_mesh, set_attrs, set_kind, write_mesh
 
+ASSET_SUFFIXES = (".usda", ".usd", ".usdc")   # what an interface file may be
+GEOM_SUFFIX = ".geom.usda"                    # its geometry payload, beside it
+
+
+def is_asset_file(path: Path) -> bool:
+    """Whether ``path`` may be a library asset's interface file: a visible USD file (not a
+    temporary of an atomic write) that is not a geometry payload. The one rule ``library list``,
+    ``library add`` and ``compose --library`` share."""
+    return (path.suffix in ASSET_SUFFIXES and not path.name.endswith(GEOM_SUFFIX)
+            and not path.name.startswith("."))
+
+
+def library_asset_files(folder: Path) -> list[Path]:
+    """The interface files of a library folder, sorted (geometry payloads excluded)."""
+    return [p for p in sorted(folder.iterdir()) if p.is_file() and is_asset_file(p)]
+
 
 def write_defect_asset(model: DefectModel, path: str | Path) -> Path:
     path = Path(path)
     name = model.name
-    geom_path = path.with_name(f"{path.stem}.geom.usda")
+    geom_path = path.with_name(f"{path.stem}{GEOM_SUFFIX}")
     gstage = new_stage(geom_path, name, f"roadtwin defect geometry: {name}")
     root = UsdGeom.Xform.Define(gstage, f"/{name}")
     mesh = UsdGeom.Mesh.Define(gstage, f"/{name}/mesh")

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from PIL import Image
 from pxr import Sdf, UsdGeom, UsdShade
 
 from ..errors import RoadtwinError
@@ -236,8 +237,6 @@ _IMAGE_CACHE_SIZE = 48
 def texture_image(path: str | Path) -> np.ndarray:
     """A texture file as float32 (H, W, 4) in [0, 1] (not colour-decoded), cached by path and
     modification time (a file replaced in place is read again)."""
-    from PIL import Image
-
     st = os.stat(path)
     key = (str(path), st.st_mtime_ns, st.st_size)
     img = _IMAGES.get(key)

@@ -1,17 +1,19 @@
 """Small helpers every layer writer uses: metadata, kinds, labels, typed custom attributes,
-texture coordinates (the st convention of :mod:`roadtwin_core.looks`) and safe prim names."""
+texture coordinates (the st convention of :mod:`roadtwin_core.looks`) and safe prim names; and
+the mesh reader every reader uses, checked on the way in by :mod:`.checks` (which imports
+nothing of this module: the dependency goes one way)."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import re
-
 from pxr import Kind, Sdf, Usd, UsdGeom, UsdPhysics, UsdSemantics, Vt
 
 from ..errors import RoadtwinError
 from ..looks.catalog import ST_TILE_M
+from .checks import FaceBudget, check_points
 
 LABEL_TAXONOMY = "class"
 
@@ -174,8 +176,6 @@ def read_mesh(mesh: UsdGeom.Mesh, world: bool = True, budget=None) -> tuple[np.n
     Checked on the way in (one RoadtwinError naming file and prim): topology, finite points
     near the origin, and the triangle budget (``budget``: a :class:`.checks.FaceBudget` shared by
     every mesh of a file; without one only the per-mesh limit applies)."""
-    from .checks import FaceBudget, check_points
-
     where = _mesh_where(mesh)
     pts = _array(mesh.GetPointsAttr(), where, np.float64, 3)
     counts = _array(mesh.GetFaceVertexCountsAttr(), where, np.int64)
@@ -191,6 +191,19 @@ def read_mesh(mesh: UsdGeom.Mesh, world: bool = True, budget=None) -> tuple[np.n
         check_points(pts, f"{where} (world space)")
     _face, corners = fan_corners(counts)
     return pts, idx[corners].reshape(-1, 3)
+
+
+def check_stage_meshes(stage: Usd.Stage, path: str | Path) -> int:
+    """Every Mesh of a stage (instance proxies included) reads cleanly: topology, finite points
+    near the origin, triangle budget. Returns the number of meshes. Exporters and validators
+    then never meet geometry that would crash them with an error naming no file."""
+    budget = FaceBudget(path)
+    n = 0
+    for prim in Usd.PrimRange(stage.GetPseudoRoot(), Usd.TraverseInstanceProxies(Usd.PrimDefaultPredicate)):
+        if prim.IsA(UsdGeom.Mesh):
+            read_mesh(UsdGeom.Mesh(prim), budget=budget)
+            n += 1
+    return n
 
 
 def fan_corners(counts) -> tuple[np.ndarray, np.ndarray]:
@@ -273,17 +286,8 @@ def lane_st(vertices: np.ndarray, centerline: np.ndarray) -> np.ndarray:
     return np.column_stack([s / ST_TILE_M, 0.5 + lateral / ST_TILE_M])
 
 
-def write_st(mesh: UsdGeom.Mesh, st: np.ndarray) -> None:
-    """``primvars:st`` (texCoord2f[], vertex interpolation), what UsdPreviewSurface readers use."""
-    pv = UsdGeom.PrimvarsAPI(mesh.GetPrim()).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                                          UsdGeom.Tokens.vertex)
-    pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(st, dtype=np.float32)))
-
-
 def _check_topology(mesh: UsdGeom.Mesh, n_points: int, counts: np.ndarray, idx: np.ndarray) -> None:
     """Malformed geometry is bad input, named by file and prim, not an IndexError later."""
-    from ..errors import RoadtwinError
-
     prim = mesh.GetPrim()
     where = f"{prim.GetStage().GetRootLayer().realPath or prim.GetStage().GetRootLayer().identifier}: mesh {prim.GetPath()}"
     if len(counts) and counts.min() < 3:

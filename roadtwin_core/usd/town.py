@@ -160,21 +160,49 @@ def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | No
     stage recomposes while tens of thousands of prims are written. ``on_looks()`` is called once
     ``layers/looks.usda`` is complete (it is written first)."""
     lay = parts.layout
-    root = f"/{lay.name}"
     (outdir / "layers").mkdir(exist_ok=True)
     doc = f"roadtwin town composed from {Path(lay.source).name}"
     split = [split_by_owner(m) for m in parts.merged]
-    empty = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
-
-    pieces: dict[int, list[tuple[str, np.ndarray, np.ndarray]]] = {}
-    for seg, parts_of, own in zip(lay.segments, split, parts.owners):
-        for local, global_index in enumerate(own):
-            if local in parts_of:
-                pieces.setdefault(global_index, []).append((seg.id, *parts_of[local]))
+    pieces = _defect_pieces(parts, split)
     marking_names = marking_prim_names(parts.markings)
 
     # Looks first: ``on_looks`` may hand the town to a preview that reads the materials while the
     # heavy layers are still being written.
+    _write_looks_layer(outdir, doc, parts, pieces, marking_names)
+    if on_looks is not None:
+        on_looks()
+    _write_roads(outdir, doc, lay, split)
+    _write_defects(outdir, doc, parts, pieces)
+    _write_markings(outdir, lay.name, doc, parts.markings, marking_names)
+    _write_physics(outdir, doc, parts, pieces)
+    _write_semantics(outdir, doc, parts, marking_names)
+
+    town_path = outdir / "town.usda"
+    town = new_layer(town_path, lay.name, doc)  # a layer, not a stage: a stage would compose the whole town here
+    town.subLayerPaths = [f"./layers/{n}.usda" for n in LAYERS] + [f"./{parts.layout_file}"]
+    top = Sdf.CreatePrimInLayer(town, Sdf.Path(f"/{lay.name}"))
+    top.kind = "assembly"
+    author_attrs(top, "roadtwin:compose", parts.compose_info)
+    town.Save()
+    return town_path
+
+
+_Pieces = dict[int, list[tuple[str, np.ndarray, np.ndarray]]]
+
+
+def _defect_pieces(parts: TownParts, split: list[dict[int, tuple[np.ndarray, np.ndarray]]]) -> _Pieces:
+    """Placement index -> its baked pieces, one per segment it lies on: (segment id, vertices, faces)."""
+    pieces: _Pieces = {}
+    for seg, parts_of, own in zip(parts.layout.segments, split, parts.owners):
+        for local, global_index in enumerate(own):
+            if local in parts_of:
+                pieces.setdefault(global_index, []).append((seg.id, *parts_of[local]))
+    return pieces
+
+
+def _write_looks_layer(outdir: Path, doc: str, parts: TownParts, pieces: _Pieces, marking_names: list[str]) -> None:
+    lay = parts.layout
+    root = f"/{lay.name}"
     looks = _readable_layer(outdir, "looks", lay.name, doc + ": materials and their bindings")
     bindings = [(seg.prim_path, kind_material(seg.kind)) for seg in lay.segments if seg.kind not in VARIANT_KINDS]
     for i, p in enumerate(parts.placements):
@@ -183,9 +211,11 @@ def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | No
     bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
     write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
     looks.Save()
-    if on_looks is not None:
-        on_looks()
 
+
+def _write_roads(outdir: Path, doc: str, lay: TownLayout, split: list[dict[int, tuple[np.ndarray, np.ndarray]]]) -> None:
+    """The merged road surfaces (owner -1 of each segment), over the layout's segment meshes."""
+    empty = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
     roads = _readable_layer(outdir, "roads", lay.name, doc + ": merged road surfaces")
     geometry = _geometry_layer(outdir, "roads", lay.name, doc)
     with Sdf.ChangeBlock():
@@ -196,8 +226,13 @@ def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | No
             _no_subdivision(Sdf.CreatePrimInLayer(roads, Sdf.Path(seg.prim_path)))
     _save(roads, geometry)
 
-    defects = _readable_layer(outdir, "defects", lay.name, doc + ": defect instances")
-    geometry = _geometry_layer(outdir, "defects", lay.name, doc)
+
+def _write_defects(outdir: Path, doc: str, parts: TownParts, pieces: _Pieces) -> None:
+    """``/<root>/Defects/<instance>``: the placement's attributes and source asset, one mesh per piece."""
+    name = parts.layout.name
+    root = f"/{name}"
+    defects = _readable_layer(outdir, "defects", name, doc + ": defect instances")
+    geometry = _geometry_layer(outdir, "defects", name, doc)
     with Sdf.ChangeBlock():
         for i, p in enumerate(parts.placements):
             for seg_id, v, f in pieces.get(i, []):
@@ -215,8 +250,11 @@ def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | No
                 _no_subdivision(define_prim(defects, f"{root}/Defects/{p.instance_id}/{seg_id}", "Mesh"))
     _save(defects, geometry)
 
-    _write_markings(outdir, lay.name, doc, parts.markings, marking_names)
 
+def _write_physics(outdir: Path, doc: str, parts: TownParts, pieces: _Pieces) -> None:
+    """Static triangle-mesh collision as overs on the road and defect meshes, and the physics scene."""
+    lay = parts.layout
+    root = f"/{lay.name}"
     physics = _readable_layer(outdir, "physics", lay.name, doc + ": static road collision")
     colliders = [seg.prim_path for seg in lay.segments]
     colliders += [f"{root}/Defects/{p.instance_id}/{seg_id}" for i, p in enumerate(parts.placements)
@@ -230,6 +268,10 @@ def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | No
                             {"physics:approximation": (Sdf.ValueTypeNames.Token, UsdPhysics.Tokens.none)}, uniform=True)
     physics.Save()
 
+
+def _write_semantics(outdir: Path, doc: str, parts: TownParts, marking_names: list[str]) -> None:
+    lay = parts.layout
+    root = f"/{lay.name}"
     sem = _readable_layer(outdir, "semantics", lay.name, doc + ": semantic labels")
     labels = [(seg.prim_path, ["road", seg.kind]) for seg in lay.segments]
     labels += [(f"{root}/Defects/{p.instance_id}", ["road_defect", p.model.defect_type]) for p in parts.placements]
@@ -239,13 +281,3 @@ def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | No
         for path, tags in labels:
             author_labels(sem, path, tags)
     sem.Save()
-
-
-    town_path = outdir / "town.usda"
-    town = new_layer(town_path, lay.name, doc)  # a layer, not a stage: a stage would compose the whole town here
-    town.subLayerPaths = [f"./layers/{n}.usda" for n in LAYERS] + [f"./{parts.layout_file}"]
-    top = Sdf.CreatePrimInLayer(town, Sdf.Path(root))
-    top.kind = "assembly"
-    author_attrs(top, "roadtwin:compose", parts.compose_info)
-    town.Save()
-    return town_path

@@ -153,7 +153,7 @@ def grid_mesh(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, name: str = "road")
 def _surface_heights(surface: str | None, bounds: tuple[float, float, float, float], seed: int):
     if surface is None or surface.strip().lower() in ("", "flat"):
         return lambda x, y: np.zeros_like(x)
-    from ..surface import parse_surface
+    from ..surface import parse_surface   # scipy; vehicle imports with numpy alone (GPU side)
 
     surf = parse_surface(surface, bounds, seed)
     return lambda x, y: surf.height(np.column_stack([x.ravel(), y.ravel()])).reshape(x.shape)
@@ -465,6 +465,6 @@ def town_scenario(scene, defect_ids: list[str] | None = None, reach_m: float = 3
 
 
 def load_town_scenario(stage_path, defect_ids: list[str] | None = None) -> Scenario:
-    from ..usd.town_reader import load_town
+    from ..usd.town_reader import load_town   # pxr; GPU machines have no USD
 
     return town_scenario(load_town(stage_path), defect_ids)

@@ -32,9 +32,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from ..errors import RoadtwinError
 from ..params import check_params, field
@@ -150,7 +154,7 @@ class VehicleParams:
         Planning's wheel-level check puts each axle's wheels ``track/2`` either side of the
         centreline with one track, so a car whose front and rear tracks differ is refused
         rather than planned with the wrong wheel lines."""
-        from ..planning import Footprint
+        from ..planning import Footprint   # planning needs scipy; vehicle imports with numpy alone (GPU side)
 
         if abs(self.track_front_m - self.track_rear_m) > 1e-9:
             raise RoadtwinError(f"vehicle {self.name}: planning needs track_front_m == track_rear_m "
@@ -257,18 +261,8 @@ def paper_car() -> VehicleParams:
     return load_vehicle(PAPER_CAR_FILE)
 
 
-def default_vehicle() -> VehicleParams:
-    return DEFAULT_CAR
-
-
 def parameter_names(cls: type = VehicleParams) -> list[str]:
     return [f.name for f in dataclasses.fields(cls) if f.name != "name"]
-
-
-def describe_vehicle_params(cls: type = VehicleParams) -> list[dict[str, Any]]:
-    """Name, default, unit and meaning of every parameter (docs, ``--help``)."""
-    return [{"name": f.name, "default": f.default, "unit": f.metadata.get("unit", ""),
-             "doc": f.metadata.get("doc", "")} for f in dataclasses.fields(cls) if f.name != "name"]
 
 
 def _flatten(data: dict, owner: str) -> dict[str, Any]:
@@ -335,8 +329,6 @@ def load_vehicle(path: str | Path) -> VehicleParams | QuarterCarParams:
         if suffix == ".json":
             data = json.loads(text)
         elif suffix == ".toml":
-            import tomllib
-
             data = tomllib.loads(text.decode("utf-8"))
         else:
             raise RoadtwinError(f"{owner}: unknown format {suffix or '(none)'} (use .toml or .json)")
@@ -407,8 +399,6 @@ class SimParams:
             raise RoadtwinError(f"{owner}: tire refinement rounds must be 0..8, got {self.tire_refine}")
         if not (0 <= self.tire_arc_deg <= 80):
             raise RoadtwinError(f"{owner}: tire arc half angle must be in [0, 80] degrees, got {self.tire_arc_deg}")
-        import re
-
         if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
             raise RoadtwinError(f"{owner}: device must be cpu, cuda or cuda:N, got {self.device!r}")
         if not (math.isfinite(self.lost_after_s) and self.lost_after_s > 0):
@@ -476,8 +466,6 @@ def plain_vehicles(runs: list[VehicleRun]) -> list[dict]:
 
 
 def check_runs(runs: list[VehicleRun], owner: str = "simulation") -> None:
-    import numpy as np
-
     if not runs:
         raise RoadtwinError(f"{owner}: no vehicles to simulate")
     kinds = {type(r.params) for r in runs}

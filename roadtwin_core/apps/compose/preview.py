@@ -19,13 +19,21 @@ from __future__ import annotations
 
 import functools
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 
 from ...errors import RoadtwinError
+from ...plugins import get_plugin_manager
+from ...render import (Camera, GroundSampler, Intrinsics, RenderParams, build_render_mesh, look_from, stage_lanes,
+                       to_srgb8)
+from ...render.cameras import vehicle_height
+from ...render.scene import MARKING_CLASS
+from ...usd.town_reader import load_town
 
 AHEAD_M = (5.0, 20.0)       # defects counted this far ahead of the camera ...
 LATERAL_M = 6.0             # ... and at most this far to either side of the lane's line
@@ -147,8 +155,6 @@ def rasterize_map(mesh, width_px: int = 900, max_height_px: int | None = None) -
     elevation in 64 bands, then defect faces red, then lane markings white, on white;
     ``width_px`` wide, or less where ``max_height_px`` would be exceeded (same scale both ways).
     Returns (image, extent (x0, x1, y0, y1) in m, elevation range (lo, hi))."""
-    from ...render.scene import MARKING_CLASS
-
     v = mesh.vertices
     lo, hi = v[:, :2].min(axis=0) - 1.0, v[:, :2].max(axis=0) + 1.0
     scale = width_px / max(hi[0] - lo[0], 1e-6)
@@ -199,9 +205,6 @@ def render_view(town_stage: Path, mesh, pm, lanes=None, view_mesh=None
     (default: read from the stage) and ``view_mesh(spot, half_angle=) -> RenderMesh`` (default:
     ``mesh`` itself; ``half_angle``: :func:`view_half_angle`) let a caller that holds the town in
     memory skip reading the stage back and keep only what the camera can see."""
-    from ...render import Camera, GroundSampler, Intrinsics, RenderParams, look_from, stage_lanes, to_srgb8
-    from ...render.cameras import vehicle_height
-
     try:
         renderer = pm.get("renderers", "warp")
     except RoadtwinError as exc:
@@ -246,12 +249,6 @@ def write_preview(path: Path, town_stage: Path, pm=None, title: str = "", dpi: i
     (meshes in memory, materials read from the stage's looks layer), so nothing is read back.
     The PNG is composed with Pillow (no matplotlib: its import and figure saving took ~1.5 s);
     ``dpi`` is kept for callers and ignored."""
-    import time
-
-    from ...plugins import get_plugin_manager
-    from ...render import build_render_mesh
-    from ...usd.town_reader import load_town
-
     t0 = time.perf_counter()
     pm = pm or get_plugin_manager()
     if town is not None:
@@ -278,8 +275,6 @@ _INK, _NOTE_INK = (20, 20, 20), (140, 0, 0)
 
 @functools.lru_cache(maxsize=None)
 def _font(size: int):
-    from PIL import ImageFont
-
     try:
         return ImageFont.load_default(size=size)
     except TypeError:                                   # Pillow < 10.1: the fixed bitmap font
@@ -297,8 +292,6 @@ def compose_sheet(view, view_title: str, img: np.ndarray, extent: tuple, zrange:
                   note: str = ""):
     """The preview as one Pillow image: the view (if any) with its title, then the map with its
     title, the camera spot and heading (arrow), a scale bar and the elevation colour bar."""
-    from PIL import Image, ImageDraw
-
     font, small = _font(14), _font(12)
     pad, head = 10, 26
     mh, mw = img.shape[:2]

@@ -14,6 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ...errors import RoadtwinError
+from ...plugins import PluginManager
+from ...render import Camera, Intrinsics, RenderParams, look_from
+from ...render.scene import RenderMaterial, RenderMesh
+from . import preview, preview_scene  # noqa: F401 - preview_scene: the town that render_preview receives
+
 __all__ = ["warm_up_renderer", "render_preview"]
 
 PREVIEW_RENDERER = "warp"
@@ -27,20 +33,16 @@ def _plugins(only=None):
     others' imports cost ~0.7 s of CPU and ~120 MB here), else all."""
     global _PLUGINS
     if _PLUGINS is None:
-        from ...plugins import PluginManager
-
         _PLUGINS = PluginManager(only=only)
     return _PLUGINS
 
 
 def _import_preview_modules() -> None:
-    """What the preview imports (USD, OpenCV, Pillow and its font, the preview's own modules:
-    ~0.25 s), imported while the helper waits for the town rather than after it arrives."""
+    """What the preview loads on first use beyond this module's imports (OpenCV, an optional
+    package, and Pillow's fonts), loaded while the helper waits for the town rather than after
+    it arrives. The preview's own modules (USD, Pillow, ~0.25 s in all) come with this module,
+    which the helper imports to run its first job, :func:`warm_up_renderer`."""
     import cv2  # noqa: F401
-    from pxr import Usd, UsdShade  # noqa: F401
-
-    from . import preview, preview_scene  # noqa: F401
-    from ...usd import looks_reader, town, town_reader  # noqa: F401
 
     preview._font(14), preview._font(12)
 
@@ -49,10 +51,6 @@ def warm_up_renderer(plugins: tuple[str, ...] | None = None) -> float:
     """Seconds spent loading the preview renderer (from the entry points ``plugins``; None: all)
     and rendering a 16 x 12 frame of a textured square. Without a usable renderer this does
     nothing: the preview then says why."""
-    from ...errors import RoadtwinError
-    from ...render import Camera, Intrinsics, RenderParams, look_from
-    from ...render.scene import RenderMaterial, RenderMesh
-
     t0 = time.perf_counter()
     _import_preview_modules()
     try:
@@ -77,8 +75,6 @@ def warm_up_renderer(plugins: tuple[str, ...] | None = None) -> float:
 
 def render_preview(path: Path, town_stage: Path, title: str, town) -> dict:
     """``write_preview`` of the composer's in-memory town (``PreviewTown``); returns its seconds."""
-    from .preview import write_preview
-
     t0 = time.perf_counter()
-    write_preview(path, town_stage, pm=_plugins(), title=title, town=town)
+    preview.write_preview(path, town_stage, pm=_plugins(), title=title, town=town)
     return {"preview_s": time.perf_counter() - t0}

@@ -7,7 +7,7 @@ st come from the composer's in-memory meshes, through the same functions the wri
 (``segment_st`` / ``planar_st``, the catalog's binding rules); the materials themselves are
 parsed from the stage's own looks layer (``layers/looks.usda``, a small file, which the composer
 writes first), so the view shows the stage's materials.
-tests/test_preview_scene.py checks the result against ``build_render_mesh(load_town(stage, looks=True))``.
+tests/apps/test_preview_scene.py checks the result against ``build_render_mesh(load_town(stage, looks=True))``.
 
 Cost (Town01, 1,000 defects, 2 cores): the parts are concatenated once (~0.05 s) and the map
 and the view are selected from that with whole-array culling; decoding the ~10 materials in
@@ -19,9 +19,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pxr import Usd, UsdShade
 
+from ...errors import RoadtwinError
 from ...looks.catalog import defect_material, kind_material, marking_material
 from ...model import MergedSegment, Placement, TownLayout
+from ...render import Lane
+from ...render.scene import DEFAULT_MATERIAL, RenderMaterial, RenderMesh, class_names
+from ...usd.looks_reader import decode_texture, parse_material, srgb_to_linear
+from ...usd.stage import planar_st
+from ...usd.town import segment_st
 
 VIEW_RANGE_M = 150.0     # road drawn in the perspective view: this far around the camera ...
 VIEW_BEHIND_M = 5.0      # ... and no more than this behind it (without a view wedge)
@@ -39,8 +46,6 @@ class PreviewTown:
     _geometry: object = field(default=None, init=False, repr=False, compare=False)
 
     def lanes(self):
-        from ...render import Lane
-
         return [Lane(s.id, np.asarray(s.centerline, float)) for s in self.layout.segments
                 if s.kind == "driving" and s.centerline is not None and len(s.centerline) >= 2]
 
@@ -49,9 +54,6 @@ class PreviewTown:
         face, material name per face, st-function per face group). Whole segments at a time
         (numpy lookups by face owner), not one array per defect piece: a 10,000-defect town has
         ~12,000 pieces."""
-        from ...usd.stage import planar_st
-        from ...usd.town import segment_st
-
         for seg, m, own in zip(self.layout.segments, self.merged, self.owners):
             own = np.asarray(own, dtype=np.int64)
             is_defect = m.face_owner >= 0
@@ -93,8 +95,6 @@ class PreviewTown:
 
     def _labels(self, g):
         """(classes, defect types, class id per face)."""
-        from ...render.scene import class_names
-
         dtypes = sorted({p.model.defect_type for p in self.placements})
         classes = class_names(dtypes, [s.kind for s in self.layout.segments])
         cid = {n: i for i, n in enumerate(classes)}
@@ -104,8 +104,6 @@ class PreviewTown:
 
     def map_mesh(self):
         """The whole town, labelled (no looks: the map colours by elevation and label)."""
-        from ...render.scene import DEFAULT_MATERIAL, RenderMesh
-
         g = self._town()
         classes, dtypes, (p_class, part_class) = self._labels(g)
         defect = g.place >= 0
@@ -122,9 +120,6 @@ class PreviewTown:
         bounding circle (centroid, farthest corner) meets the region, so a large road triangle
         whose corners all lie outside the wedge is still drawn. Parts (segments, markings)
         with any face kept bring all their vertices, in the town's order."""
-        from ...render.scene import DEFAULT_MATERIAL, RenderMesh
-        from ...usd.stage import planar_st
-
         g = self._town()
         c, s = np.cos(spot.heading), np.sin(spot.heading)
         xy = np.asarray(spot.xy, np.float64)
@@ -210,8 +205,6 @@ def preview_material(mat, max_texels: int = PREVIEW_TEXELS):
     side is <= ``max_texels``: the renderer's own box pyramid level (2 x 2 means of the
     decoded values), so the view looks as the full material does at that distance, for a
     quarter of the memory per level dropped. Decoded through a 256-entry table (uint8 in)."""
-    from ...render.scene import RenderMaterial
-
     diffuse = (_decode_reduced(mat.diffuse_texture, max_texels) if mat.diffuse_texture is not None
                else np.asarray(mat.diffuse_color, np.float32).reshape(1, 1, 3))
     rough = (_decode_reduced(mat.roughness_texture, max_texels) if mat.roughness_texture is not None
@@ -230,9 +223,6 @@ def _decode_reduced(tex, max_texels: int) -> np.ndarray:
     (INTER_AREA at a power-of-two factor is the mean of each 2^k x 2^k block, as the repeated
     2 x 2 means of the renderer's pyramid)."""
     import cv2
-
-    from ...errors import RoadtwinError
-    from ...usd.looks_reader import decode_texture, srgb_to_linear
 
     if not tex.path:
         return decode_texture(tex)
@@ -269,10 +259,6 @@ def _stage_materials(looks_layer: Path | None) -> dict:
     """Material name -> parsed ``TownMaterial`` of every ``UsdShade.Material`` in the looks layer."""
     if looks_layer is None or not Path(looks_layer).exists():
         return {}
-    from pxr import Usd, UsdShade
-
-    from ...usd.looks_reader import parse_material
-
     stage = Usd.Stage.Open(str(looks_layer))
     out = {}
     for prim in stage.Traverse():

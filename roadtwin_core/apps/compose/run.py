@@ -1,4 +1,4 @@
-"""The composer: layout + defect library + rules -> a town stage (DESIGN.md data flow)."""
+"""The composer: layout + defect library + rules -> a town stage (docs/architecture.md#data-flow)."""
 from __future__ import annotations
 
 import contextlib
@@ -14,23 +14,25 @@ from typing import Any, Callable
 import numpy as np
 
 from ...atomic import atomic_output_dir, scratch_dir
+from ...contracts import configured
 from ...errors import RoadtwinError
 from ...executors import SerialExecutor, make_executor
 from ...looks.prefetch import TexturePrefetch, TexturesNow
-from ...town.markings import build_markings
 from ...model import ComposeRules, DefectModel, Placement, TownLayout
-from ...contracts import configured
 from ...params import apply_params, make_params
-from ...town.placement import lane_length_km, place_defects
-from .preview_job import PREVIEW_RENDERER, render_preview, warm_up_renderer
 from ...plugins import PluginManager, get_plugin_manager
 from ...remesh import coarsen_defect
-from .sidecar import Sidecar
 from ...surface import parse_surface
+from ...town.markings import build_markings
+from ...town.placement import lane_length_km, place_defects
 from ...usd.layout_io import read_layout
-from ...usd.library import write_defect_asset
+from ...usd.library import ASSET_SUFFIXES, library_asset_files, read_defect_asset, write_defect_asset
 from ...usd.town import TownParts, write_town
 from ...usd.validate import validate_stage
+from .preview import write_preview
+from .preview_job import PREVIEW_RENDERER, render_preview, warm_up_renderer
+from .preview_scene import PreviewTown
+from .sidecar import Sidecar
 
 Progress = Callable[[str, int, int], None]
 
@@ -67,14 +69,15 @@ def _library_model(context, item) -> DefectModel:
 
 def add_library_folder(library: dict[str, list[DefectModel]], rules: ComposeRules, folder: Path) -> ComposeRules:
     """Mix the defect assets of a library folder (reconstructed or hand-made models) into the
-    parametric ones: each joins its type's pool; a type the rules do not weight gets weight 1."""
-    from ...usd.library import read_defect_asset
-
+    parametric ones: each joins its type's pool; a type the rules do not weight gets weight 1.
+    Which files are assets is :func:`~roadtwin_core.usd.library.is_asset_file`'s rule, the one
+    ``roadtwin library list/add`` use."""
     if not folder.is_dir():
         raise RoadtwinError(f"{folder}: defect library folder not found")
-    files = sorted(p for p in folder.glob("*.usda") if not p.name.endswith(".geom.usda"))
+    files = library_asset_files(folder)
     if not files:
-        raise RoadtwinError(f"{folder}: no defect assets (*.usda) in the library folder")
+        suffixes = ", ".join(f"*{s}" for s in ASSET_SUFFIXES)
+        raise RoadtwinError(f"{folder}: no defect assets ({suffixes}) in the library folder")
     weights = dict(rules.type_weights)
     for f in files:
         model = read_defect_asset(f)
@@ -169,8 +172,6 @@ class _HereOrThere:
             self.side.result(self.warm)
             took = self.side.result(self.job)["preview_s"]
         else:
-            from .preview import write_preview
-
             path, town_stage, title, town = self.job
             write_preview(path, town_stage, pm=pm, title=title, town=town)
             took = time.perf_counter() - t0
@@ -232,8 +233,6 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
         t_textures = time.perf_counter()
 
         def start_preview():
-            from .preview_scene import PreviewTown
-
             previewer.start(tmp / "preview.png", tmp / "town.usda",
                             f"{layout.name}: {len(layout.segments)} segments, {len(placements)} defects",
                             PreviewTown(layout, merged, owners, placements, markings, tmp / "layers/looks.usda"))

@@ -6,9 +6,10 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from pxr import Sdf, UsdGeom, Vt
 
-from ...planning.grid import GridMap
-from ...planning import Footprint, PlanResult, resample_by_length
+from ...planning import Footprint, GridMap, PlanResult, resample_by_length
+from ...usd.stage import new_stage, set_attrs, set_kind
 from .plots import COLOURS
 
 
@@ -20,10 +21,6 @@ def write_path_layer(path: Path, town_ref: str, root_name: str, results: Sequenc
     attributes, with two linear ``BasisCurves``: ``Path`` (the rear-axle path) and
     ``WheelTracks`` (the four wheel contact centres). z = road height + ``lift_m``, so the curves
     are drawn on the road rather than inside it."""
-    from pxr import Sdf, UsdGeom
-
-    from ...usd.stage import new_stage, set_attrs, set_kind
-
     path = Path(path)
     stage = new_stage(path, root_name, "roadtwin planned path(s) over " + town_ref)
     stage.GetRootLayer().subLayerPaths = [town_ref]
@@ -65,8 +62,6 @@ def _rgb(planner: str) -> tuple[float, float, float]:
 
 
 def _set_curves(curve, polylines: list[np.ndarray], width: float, rgb) -> None:
-    from pxr import UsdGeom, Vt
-
     pts = np.concatenate(polylines).astype(np.float32)
     curve.CreateTypeAttr(UsdGeom.Tokens.linear)
     curve.CreateCurveVertexCountsAttr(Vt.IntArray([len(p) for p in polylines]))
@@ -80,10 +75,6 @@ def _set_curves(curve, polylines: list[np.ndarray], width: float, rgb) -> None:
 
 def write_paths_index(path: Path, root_name: str, layers: list[str]) -> None:
     """``paths.usda``: every planner's path layer sublayered over the town."""
-    from pxr import Sdf
-
-    from ...usd.stage import new_stage
-
     stage = new_stage(path, root_name, "roadtwin: every planner's path over the town")
     stage.GetRootLayer().subLayerPaths = layers
     stage.OverridePrim(Sdf.Path(f"/{root_name}"))

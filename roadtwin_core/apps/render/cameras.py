@@ -12,6 +12,9 @@ from typing import Callable
 import numpy as np
 
 from ...errors import RoadtwinError
+from ...render import load_poses_file, sample_lane_poses
+from ...render.rig_usd import read_stage_cameras
+from ...render.view_sampler import ViewRig, chain_lanes, defect_targets, lane_ahead, sample_views
 from .lanes import nearest_lane
 from .options import Rig
 
@@ -35,9 +38,6 @@ def plan_cameras(stage: Path, town, lanes: list, ground: Callable, rig: Rig, int
                  poses: str | Path | None, view_kind: str, share: float | None, background: str, seed: int,
                  min_clearance_m: float) -> CameraPlan:
     """The cameras of ``frames`` frames. ``ground()``: the stage's ground sampler (built on first use)."""
-    from ...render import load_poses_file, sample_lane_poses
-    from ...render.rig_usd import read_stage_cameras
-
     if poses is not None:
         pose_list = load_poses_file(poses)[:frames]
         _check_clearance(pose_list, ground(), str(poses), min_clearance_m)
@@ -75,8 +75,6 @@ def _check_clearance(pose_list, ground, source: str, min_clearance_m: float) -> 
 
 
 def _aimed_at_defects(stage, town, lanes, ground, rig: Rig, intrinsics, frames, share, background, seed) -> CameraPlan:
-    from ...render.view_sampler import ViewRig, chain_lanes, defect_targets, sample_views
-
     vrig = ViewRig(mount_height_m=rig.mount_height_m, hfov_deg=rig.hfov_deg, width_px=rig.width, height_px=rig.height_px,
                    **({"pitch_deg": rig.pitch_deg} if rig.pitch_deg is not None else {}))
     chained = chain_lanes(lanes)      # what view_sampler.stage_views does, without re-reading the stage
@@ -106,15 +104,11 @@ def with_ego_lanes(plan: CameraPlan, lanes: list, lane_width: float) -> CameraPl
     camera, else the nearest lane within ``lane_width`` heading the camera's way (or None)."""
     if plan.lane_of:
         return plan
-    from ...render.view_sampler import chain_lanes
-
     chained = chain_lanes(lanes)
     return dataclasses.replace(plan, lane_of=[nearest_lane(chained, p, lane_width) for p in plan.poses])
 
 
 def ego_lane_points(plan: CameraPlan) -> list:
     """Per frame, the centreline ahead of the camera's lane (the ego-lane class), or None."""
-    from ...render.view_sampler import lane_ahead
-
     return [lane_ahead(lane, s) if lane is not None else None
             for lane, s in ((x if x is not None else (None, 0.0)) for x in plan.lane_of)]

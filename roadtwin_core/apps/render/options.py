@@ -1,13 +1,55 @@
-"""Checks of ``roadtwin render``'s options: image sizes, numeric ranges, ``--views``, rig defaults."""
+"""``roadtwin render``'s options (:class:`RenderOptions`) and their checks: image sizes, numeric
+ranges, ``--views``, rig defaults."""
 from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 from ...errors import RoadtwinError
+from ...render.rig_usd import rig_preset
 
-__all__ = ["MAX_FRAMES", "Rig", "check_range", "check_rig", "parse_size", "parse_views", "pick", "resolve_rig"]
+__all__ = ["MAX_FRAMES", "RenderOptions", "Rig", "check_range", "check_rig", "parse_size", "parse_views", "pick",
+           "resolve_rig"]
+
+
+@dataclass
+class RenderOptions:
+    """What to render, one field per ``roadtwin render`` option and with its default; ``None``
+    means "the rig's, else the built-in default" (see :func:`resolve_rig`). Checked by
+    :func:`~roadtwin_core.apps.render.run.run_render` before anything is read or written."""
+
+    frames: int = 8
+    rig: str | None = None                 # survey | dashcam | stereo | inspection
+    views: str | None = None               # random | defects:SHARE[:clear]; default: stage cameras, else random
+    randomize: bool = False                # per-frame domain randomization
+    classmap: str | None = None            # class map TOML file or builtin:NAME
+    size: str | None = None                # WIDTHxHEIGHT
+    stereo: bool = False
+    baseline: float | None = None          # stereo baseline, m
+    events: bool = False                   # also simulate an event camera on a continuous drive
+    formats: str | None = None             # comma-separated dataset formats (default: all that apply)
+    seed: int = 0
+    hfov: float | None = None              # degrees
+    height: float | None = None            # camera height above the road, m
+    pitch: float | None = None             # degrees, negative looks down
+    poses: str | Path | None = None        # JSON poses file instead of lane sampling
+    weather: str = "clear"
+    material: str | None = None            # roadMaterial variant
+    renderer: str = "warp"                 # renderer plugin
+    device: str | None = None              # cpu | cuda | cuda:N (default: the renderer's)
+    backend: str = "auto"                  # ray caster: auto | warp | open3d
+    executor: str = "local"                # local | serial | ray
+    workers: int | None = None
+    ray_address: str | None = None
+    speed: float = 8.0                     # event drive speed, m/s
+    event_rate: float = 500.0              # event drive frame rate, Hz
+    event_frames: int = 50
+    event_size: str | None = None          # default: size
+    event_threshold: float = 0.2
+    renderer_params: dict[str, Any] = field(default_factory=dict)   # --param: values for the renderer's Params
 
 
 def parse_size(text: str, what: str = "--size") -> tuple[int, int]:
@@ -57,7 +99,6 @@ def pick(explicit, preset_value, default):
     return explicit if explicit is not None else preset_value if preset_value is not None else default
 
 
-
 @dataclass(frozen=True)
 class Rig:
     """The camera rig a render uses: a preset's values (``--rig``) with explicit options over them."""
@@ -76,8 +117,6 @@ class Rig:
 def resolve_rig(rig: str | None, size: str | None, hfov: float | None, height: float | None, pitch: float | None,
                 baseline: float | None, stereo: bool) -> Rig:
     """``--rig`` and the options that override it, checked (one line naming the option)."""
-    from ...render.rig_usd import rig_preset
-
     preset = rig_preset(rig) if rig is not None else None
     size_text = size if size is not None else (f"{preset.width}x{preset.height}" if preset else "640x480")
     width, height_px = parse_size(size_text)

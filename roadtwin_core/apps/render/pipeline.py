@@ -108,6 +108,7 @@ def render_job(ctx: RenderContext, scene, job: FrameJob) -> FrameOut:
     if ctx.class_map is not None:
         ego = None
         if job.lane_xy is not None and ctx.class_map.ego:
+            # scipy: Ray render workers import apps.render with numpy, warp, shapely, Pillow and pluggy only
             from ...render.ego_lane import ego_lane_mask
 
             surface = (frame.depth > 0) & (frame.semantic != 0) & (frame.semantic != 255)

@@ -25,6 +25,10 @@ Everything is checked before the output directory is touched (size, formats, wea
 stage, poses, rig, views, class map) and the directory is written whole or not at all.
 The renderer is a plugin, found by name (``--renderer``, default ``warp``). Workers run
 ``pipeline.render_chunk``; the main process only writes (``writers``).
+
+A run has four parts: the options checked (:func:`check_options`), the scene loaded
+(:func:`load_scene`), the frames planned (:func:`plan_frames`: cameras, formats, one job per
+frame, the event drive), then the dataset rendered and written (:func:`write_dataset`).
 """
 from __future__ import annotations
 
@@ -34,135 +38,164 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
-from ...atomic import atomic_output_dir
+from ...atomic import atomic_output_dir, output_path
 from ...errors import RoadtwinError
-from ...params import check_params, cli_params
+from ...executors import make_executor
+from ...params import apply_params, check_params
+from ...plugins import get_plugin_manager
+from ...render import (WEATHERS, Camera, GroundSampler, Intrinsics, RenderParams, StereoCamera, build_render_mesh,
+                       stage_lanes)
+from ...render.classmap import load_class_map
+from ...render.randomize import Ranges, draw
+from ...render.scene_look import LookTable
 from .cameras import CameraPlan, ego_lane_points, plan_cameras, with_ego_lanes
-from .options import MAX_FRAMES, Rig, check_range, check_rig, parse_size, parse_views, resolve_rig
+from .events import EventDrive, check_events
+from .options import MAX_FRAMES, RenderOptions, Rig, check_range, check_rig, parse_views, resolve_rig
 from .pipeline import FrameJob, RenderContext, forget, render_chunk
 from .writers import DatasetWriter, available_formats, parse_formats
 
-__all__ = ["Progress", "defect_statistics", "run_render"]
+__all__ = ["CheckedOptions", "FramePlan", "Progress", "RenderOptions", "Scene", "check_options", "defect_statistics",
+           "frame_jobs", "load_scene", "plan_frames", "run_render", "write_dataset"]
 
 Progress = Callable[[str, int, int], None]
 
 
-def run_render(stage: str | Path, out: str | Path, *, frames: int = 8, size: str | None = None, stereo: bool = False,
-               baseline: float | None = None, events: bool = False, formats: str | None = None, seed: int = 0,
-               hfov: float | None = None, height: float | None = None, pitch: float | None = None,
-               poses: str | Path | None = None, weather: str = "clear",
-               material: str | None = None, renderer: str = "warp", device: str | None = None, backend: str = "auto",
-               speed: float = 8.0, event_rate: float = 500.0, event_frames: int = 50, event_size: str | None = None,
-               event_threshold: float = 0.2, rig: str | None = None, views: str | None = None,
-               randomize: bool = False, classmap: str | None = None, executor: str = "local",
-               workers: int | None = None, ray_address: str | None = None, pm=None,
-               progress: Progress | None = None, param: list[str] | None = None) -> dict:
+def run_render(stage: str | Path, out: str | Path, options: RenderOptions | None = None, *, pm=None,
+               progress: Progress | None = None) -> dict:
     """Render a dataset; returns the summary (also the basis of meta.json). Everything is checked
     and the cameras are chosen before the output directory is touched."""
-    from ...atomic import output_path
-    from ...executors import make_executor
-    from ...plugins import get_plugin_manager
-    from ...render import GroundSampler, Intrinsics, RenderParams, WEATHERS, build_render_mesh, stage_lanes
-    from ...render.classmap import load_class_map
-    from ...usd.town_reader import load_town
-
+    o = options or RenderOptions()
     t0 = time.perf_counter()
     stage = Path(stage)
     output_path(out, "dir")
-    r = resolve_rig(rig, size, hfov, height, pitch, baseline, stereo)
-    view_kind, share, background = parse_views(views)
-    if poses is not None and view_kind != "none":
+    checked = check_options(o)
+    pm = pm or get_plugin_manager()
+    scene = load_scene(stage, o, checked, pm)
+    frames = plan_frames(stage, o, checked, scene, pm)
+    t_setup = time.perf_counter()
+    with atomic_output_dir(out) as tmp:
+        return write_dataset(tmp, stage, o, checked, frames, progress, (t0, t_setup))
+
+
+@dataclass
+class CheckedOptions:
+    """The options checked, and what they resolve to."""
+
+    rig: Rig
+    view_kind: str                 # none | random | defects
+    share: float | None            # --views defects:SHARE
+    background: str                # uniform | clear
+    class_map: Any                 # classmap.ClassMap or None
+    runner: Any                    # the executor
+    drive: EventDrive | None       # --events
+    params: RenderParams           # --weather/--seed/--device/--backend and the renderer's --param values
+
+
+def check_options(o: RenderOptions) -> CheckedOptions:
+    """Every option checked (one line naming the option), before any file is read but the class map."""
+    r = resolve_rig(o.rig, o.size, o.hfov, o.height, o.pitch, o.baseline, o.stereo)
+    view_kind, share, background = parse_views(o.views)
+    if o.poses is not None and view_kind != "none":
         raise RoadtwinError("give --poses or --views, not both")
     cmap = None
-    if classmap is not None:
-        cmap = load_class_map(classmap[len("builtin:"):] if classmap.startswith("builtin:") else classmap)
-    runner = make_executor(executor, ray_address, workers)
-    if workers is not None and workers < 1:
-        raise RoadtwinError(f"--workers must be >= 1, got {workers}")
-    check_range("--frames", frames, 1, MAX_FRAMES)
-    check_range("--seed", seed, 0, 2**63 - 1)
+    if o.classmap is not None:
+        cmap = load_class_map(o.classmap[len("builtin:"):] if o.classmap.startswith("builtin:") else o.classmap)
+    runner = make_executor(o.executor, o.ray_address, o.workers)
+    if o.workers is not None and o.workers < 1:
+        raise RoadtwinError(f"--workers must be >= 1, got {o.workers}")
+    check_range("--frames", o.frames, 1, MAX_FRAMES)
+    check_range("--seed", o.seed, 0, 2**63 - 1)
     check_rig(r)
-    if weather not in WEATHERS:
-        raise RoadtwinError(f"unknown weather {weather!r} (known: {', '.join(WEATHERS)})")
-    drive = _check_events(events, event_size, event_frames, event_threshold, speed, event_rate, r)
-    params = check_params(RenderParams(weather=weather, seed=seed, device=device, backend=backend), "render")
-    params = cli_params(param, params, f"renderer {renderer}")  # --param KEY=VALUE
+    if o.weather not in WEATHERS:
+        raise RoadtwinError(f"unknown weather {o.weather!r} (known: {', '.join(WEATHERS)})")
+    drive = check_events(o, r)
+    params = check_params(RenderParams(weather=o.weather, seed=o.seed, device=o.device, backend=o.backend), "render")
+    params = apply_params(params, o.renderer_params, f"renderer {o.renderer}")
+    return CheckedOptions(r, view_kind, share, background, cmap, runner, drive, params)
 
-    pm = pm or get_plugin_manager()
-    rend = pm.get("renderers", renderer)
+
+@dataclass
+class Scene:
+    """The town to render: the renderer plugin, the town read from the stage, its render mesh and
+    driving lanes; ``ground`` builds the ground sampler once, if a camera needs it."""
+
+    renderer: Any
+    town: Any
+    mesh: Any
+    lanes: list
+    lane_width: float
+    ground: Callable[[], GroundSampler]
+
+
+def load_scene(stage: Path, o: RenderOptions, checked: CheckedOptions, pm) -> Scene:
+    """The renderer and the stage (its ``--material`` variant) as a render mesh, with its lanes."""
+    from ...usd.town_reader import load_town   # pxr: Ray render workers import apps.render, may have no USD
+
+    rend = pm.get("renderers", o.renderer)
     if not stage.exists():
         raise RoadtwinError(f"{stage}: no such file")
-    town = load_town(stage, looks=True, variants={"roadMaterial": material} if material else None)
+    town = load_town(stage, looks=True, variants={"roadMaterial": o.material} if o.material else None)
     mesh = build_render_mesh(town, defect_types=pm.registry("defect_types").keys())
-    if cmap is not None:
-        cmap.check_labels(mesh.classes, str(stage))
+    if checked.class_map is not None:
+        checked.class_map.check_labels(mesh.classes, str(stage))
     lanes = stage_lanes(stage)
     lane_width = float(town.metadata.get("laneWidthM", 3.5) or 3.5)
-    ground = functools.lru_cache(maxsize=1)(lambda: GroundSampler(mesh))   # built once, if a camera needs it
-    plan = plan_cameras(stage, town, lanes, ground, r, Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg),
-                        frames=frames, poses=poses, view_kind=view_kind, share=share, background=background,
-                        seed=seed, min_clearance_m=params.min_clearance_m)
+    ground = functools.lru_cache(maxsize=1)(lambda: GroundSampler(mesh))
+    return Scene(rend, town, mesh, lanes, lane_width, ground)
+
+
+@dataclass
+class FramePlan:
+    """What will be rendered: the cameras, the formats, one job per frame (on ``mesh``, which
+    ``--randomize`` gives the look table's split materials), what workers share, the event drive."""
+
+    cameras: CameraPlan
+    formats: list[str]
+    known_formats: Any
+    mesh: Any
+    jobs: list[FrameJob]
+    context: RenderContext
+    drive: EventDrive | None
+
+
+def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: Scene, pm) -> FramePlan:
+    """Cameras chosen, formats checked, each frame's job decided and the event drive rendered."""
+    r, cmap, params = checked.rig, checked.class_map, checked.params
+    plan = plan_cameras(stage, scene.town, scene.lanes, scene.ground, r,
+                        Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg), frames=o.frames, poses=o.poses,
+                        view_kind=checked.view_kind, share=checked.share, background=checked.background,
+                        seed=o.seed, min_clearance_m=params.min_clearance_m)
     known_formats = available_formats(pm.registry("dataset_formats"))
-    fmt = parse_formats(formats, plan.stereo, known_formats)
+    fmt = parse_formats(o.formats, plan.stereo, known_formats)
     if cmap is not None and cmap.ego:
-        plan = with_ego_lanes(plan, lanes, lane_width)
+        plan = with_ego_lanes(plan, scene.lanes, scene.lane_width)
         lane_xy = ego_lane_points(plan)
     else:
         lane_xy = [None] * len(plan.poses)
-    mesh, jobs = frame_jobs(plan, mesh, params, stage, seed, lane_xy, randomize)
-    ctx = RenderContext(f"{os.getpid()}-{time.time_ns()}", rend, mesh, params, cmap, lane_width, "normal" in fmt)
+    mesh, jobs = frame_jobs(plan, scene.mesh, params, stage, o.seed, lane_xy, o.randomize)
+    ctx = RenderContext(f"{os.getpid()}-{time.time_ns()}", scene.renderer, mesh, params, cmap, scene.lane_width,
+                        "normal" in fmt)
+    drive = checked.drive
     if drive is not None:
-        if not lanes:
+        if not scene.lanes:
             raise RoadtwinError(f"{stage}: --events drives along a lane, but the stage has no driving lane centerlines")
-        drive = drive.start(rend, mesh, params, lanes, ground(), seed, r)
-    t_setup = time.perf_counter()
-
-    classes = list(cmap.classes) if cmap is not None else mesh.classes
-    with atomic_output_dir(out) as tmp:
-        writer = DatasetWriter(tmp, fmt, plan.intrinsics, classes, mesh.instances,
-                               plan.baseline_m if plan.stereo else None, categories=mesh.defect_types,
-                               available=known_formats)
-        shares, backend_used, device_used = _render_frames(runner, ctx, jobs, writer, workers, progress)
-        t_frames = time.perf_counter()
-        n_events = drive.write(writer, progress) if drive is not None else 0
-        t_events = time.perf_counter()
-        intr = plan.intrinsics
-        summary = {
-            "stage": str(stage), "renderer": renderer, "frames": len(plan.poses), "size": [intr.width, intr.height],
-            "stereo": bool(plan.stereo), "formats": fmt, "events": n_events, "poses": plan.source,
-            "rig": r.preset.name if r.preset else None, "hfov_deg": round(float(np.degrees(2 * np.arctan(
-                intr.width / 2 / intr.fx))), 4), "randomize": bool(randomize),
-            "class_map": None if cmap is None else {"name": cmap.name, "source": cmap.source,
-                                                    "classes": list(cmap.classes), "stage_labels": mesh.classes},
-            "executor": runner.name, "backend": backend_used, "device": device_used,
-            "defects": defect_statistics(shares),
-            "render_params": dataclasses.asdict(params), "material": material, "seed": seed,
-            "timings_s": {"setup": round(t_setup - t0, 3), "frames": round(t_frames - t_setup, 3),
-                          "events": round(t_events - t_frames, 3)},
-        }
-        summary["frames_per_s"] = round(len(plan.poses) / max(t_frames - t_setup, 1e-9), 3)
-        writer.finish({"render": summary})
-    return summary
+        drive = drive.start(scene.renderer, mesh, params, scene.lanes, scene.ground(), o.seed, r)
+    return FramePlan(plan, fmt, known_formats, mesh, jobs, ctx, drive)
 
 
 def frame_jobs(plan: CameraPlan, mesh, params, stage: Path, seed: int, lane_xy: list, randomize: bool):
     """(mesh, one FrameJob per camera). With ``randomize`` each frame draws its look and camera
     model from (seed, i) alone, so every executor renders the same frames; the mesh then gets the
     look table's split materials."""
-    from ...render import Camera, StereoCamera
-
     cams = [Camera(plan.intrinsics, p) for p in plan.poses]
     if plan.stereo:
         cams = [StereoCamera(c, plan.baseline_m) for c in cams]
     table = None
     if randomize:
-        from ...render.randomize import Ranges, draw
-        from ...render.scene_look import LookTable
-
         ranges = Ranges()
         mesh, table = LookTable.split(mesh, stage.parent, tuple(ranges.verge_surfaces) + tuple(ranges.shoulder_surfaces)
                                       + ("pothole_wet",))
@@ -182,6 +215,40 @@ def frame_jobs(plan: CameraPlan, mesh, params, stage: Path, seed: int, lane_xy: 
         else:
             jobs.append(FrameJob(i, cam, params, None, None, lane_xy[i], record))
     return mesh, jobs
+
+
+def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedOptions, frames: FramePlan,
+                  progress: Progress | None, started: tuple[float, float]) -> dict:
+    """Render the frames (and the events) into ``folder``, then meta.json; returns the summary.
+    ``started``: when the run and its rendering began (``time.perf_counter``)."""
+    plan, mesh, cmap = frames.cameras, frames.mesh, checked.class_map
+    classes = list(cmap.classes) if cmap is not None else mesh.classes
+    writer = DatasetWriter(folder, frames.formats, plan.intrinsics, classes, mesh.instances,
+                           plan.baseline_m if plan.stereo else None, categories=mesh.defect_types,
+                           available=frames.known_formats)
+    shares, backend_used, device_used = _render_frames(checked.runner, frames.context, frames.jobs, writer, o.workers,
+                                                       progress)
+    t_frames = time.perf_counter()
+    n_events = frames.drive.write(writer, progress) if frames.drive is not None else 0
+    t_events = time.perf_counter()
+    t0, t_setup = started
+    intr = plan.intrinsics
+    summary = {
+        "stage": str(stage), "renderer": o.renderer, "frames": len(plan.poses), "size": [intr.width, intr.height],
+        "stereo": bool(plan.stereo), "formats": frames.formats, "events": n_events, "poses": plan.source,
+        "rig": checked.rig.preset.name if checked.rig.preset else None, "hfov_deg": round(float(np.degrees(2 * np.arctan(
+            intr.width / 2 / intr.fx))), 4), "randomize": bool(o.randomize),
+        "class_map": None if cmap is None else {"name": cmap.name, "source": cmap.source,
+                                                "classes": list(cmap.classes), "stage_labels": mesh.classes},
+        "executor": checked.runner.name, "backend": backend_used, "device": device_used,
+        "defects": defect_statistics(shares),
+        "render_params": dataclasses.asdict(checked.params), "material": o.material, "seed": o.seed,
+        "timings_s": {"setup": round(t_setup - t0, 3), "frames": round(t_frames - t_setup, 3),
+                      "events": round(t_events - t_frames, 3)},
+    }
+    summary["frames_per_s"] = round(len(plan.poses) / max(t_frames - t_setup, 1e-9), 3)
+    writer.finish({"render": summary})
+    return summary
 
 
 def _render_frames(runner, ctx: RenderContext, jobs: list, writer, workers: int | None, progress: Progress | None):
@@ -205,65 +272,6 @@ def _render_frames(runner, ctx: RenderContext, jobs: list, writer, workers: int 
     finally:
         forget(ctx.token)
     return shares, backend_used, device_used
-
-
-def _check_events(events: bool, event_size, event_frames, event_threshold, speed, event_rate, r: Rig):
-    """--events' options checked; the drive to simulate, or None without --events."""
-    ev_w, ev_h = parse_size(event_size, "--event-size") if event_size else (r.width, r.height_px)
-    if not events:
-        return None
-    check_range("--event-frames", event_frames, 2, MAX_FRAMES)
-    check_range("--event-threshold", event_threshold, 1e-6, 100.0)
-    check_range("--speed", speed, 1e-3, 200.0, "m/s")
-    check_range("--event-rate", event_rate, 1e-3, 1e6, "Hz")
-    try:
-        import h5py  # noqa: F401
-    except ImportError:
-        raise RoadtwinError("--events writes HDF5 and needs h5py (pip install h5py)") from None
-    return EventDrive((ev_w, ev_h), event_frames, event_threshold, speed, event_rate)
-
-
-@dataclass
-class EventDrive:
-    """``--events``: a continuous drive along one lane, its frames fed to the event camera (on the
-    renderer's device when it can simulate there, else by the core's simulator from the frames)."""
-
-    size: tuple[int, int]
-    n_frames: int
-    threshold: float
-    speed: float
-    rate_hz: float
-    _run: tuple | None = None
-
-    def start(self, rend, mesh, params, lanes, ground, seed: int, r: Rig) -> "EventDrive":
-        from ...render import Camera, Intrinsics, lane_trajectory
-
-        prepared = rend.prepare(mesh, params)
-        times, poses = lane_trajectory(lanes, np.random.default_rng([seed, 1]), ground, speed=self.speed,
-                                       rate_hz=self.rate_hz, n_frames=self.n_frames, height=r.mount_height_m)
-        cams = [Camera(Intrinsics.from_fov(*self.size, r.hfov_deg), p) for p in poses]
-        frames = rend.render(prepared, cams, dataclasses.replace(params, shade=True))
-        self._run = (rend, prepared, cams, times, poses, params, seed, frames)
-        return self
-
-    def write(self, writer, progress: Progress | None) -> int:
-        """Simulate the events and write them; their count."""
-        from ...render import EventSimulator
-
-        report = progress or (lambda *_: None)
-        rend, prepared, cams, times, poses, params, seed, frames = self._run
-        got = rend.render_events(prepared, cams, times, params, progress=lambda k, n: report("events", k, n),
-                                 threshold=self.threshold, seed=seed)
-        if got is None:
-            sim = EventSimulator(*self.size, threshold=self.threshold, seed=seed)
-            parts = []
-            for k, (frame, t) in enumerate(zip(frames, times)):
-                parts.append(sim.step(frame.rgb, float(t)))
-                report("events", k + 1, len(times))
-            got = {key: np.concatenate([c[key] for c in parts]) for key in ("x", "y", "t", "p")}, sim.params()
-        ev, sim_params = got
-        writer.write_events(ev, times, poses, self.size, {**sim_params, "speed_mps": self.speed, "rate_hz": self.rate_hz})
-        return len(ev["t"])
 
 
 def defect_statistics(shares: list[dict]) -> dict:

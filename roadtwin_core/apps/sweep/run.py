@@ -2,6 +2,7 @@
 recommendations, write the outputs."""
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 from typing import Callable
@@ -44,6 +45,4 @@ def run_sweep(scenario: Scenario, backend, config: SweepConfig, outdir: Path | N
 
 
 def dataclass_dict(obj) -> dict:
-    import dataclasses
-
     return dataclasses.asdict(obj) if dataclasses.is_dataclass(obj) else dict(obj)

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
+from PIL import Image, ImageDraw
 
 from ....render import IGNORE_INDEX
 
@@ -63,8 +64,6 @@ def colorize_normals(normal: np.ndarray) -> np.ndarray:
 
 
 def save_png(path: Path, array: np.ndarray) -> None:
-    from PIL import Image
-
     Image.fromarray(np.ascontiguousarray(array)).save(path, compress_level=1)  # uint16 -> 16-bit PNG
 
 
@@ -85,8 +84,6 @@ def link(src: Path, dst: Path) -> None:
 
 def write_contact_sheet(path: Path, rows: list[dict[str, np.ndarray]], thumb_width: int = 256) -> None:
     """One row per frame, one column per modality, labelled on top."""
-    from PIL import Image, ImageDraw
-
     cols = [c for c in ("rgb", "semantic", "instance", "depth", "normal", "disparity") if all(c in r for r in rows)]
     h0, w0 = rows[0]["rgb"].shape[:2]
     tw = min(thumb_width, w0)

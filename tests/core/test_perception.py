@@ -1,0 +1,280 @@
+"""Class maps, dataset folders and the synthetic-to-real benchmark (bench/perception.py) on CPU."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from roadtwin_core import RoadtwinError
+from roadtwin_core.datasets.folders import find_pairs, load_folder, read_label
+from roadtwin_core.render.classmap import builtin_class_maps, load_class_map, parse_class_map
+from roadtwin_core.render.scene import class_names
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = ROOT / "tests/data/road_defects_br_tiny"
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_perception", ROOT / "bench/perception.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+# ---------------------------------------------------------------------------------- class map
+STAGE = class_names(["pothole", "crack", "bump", "rut", "manhole", "depression"])
+# -> background 0, driving 1, junction 2, sidewalk 3, shoulder 4, bump 5, crack 6,
+#    depression 7, manhole 8, pothole 9, rut 10
+
+
+def test_builtin_class_map_matches_the_real_classes_and_is_package_data():
+    m = load_class_map("road_defects_br")
+    assert m.classes == ("background", "ego_lane", "crack", "pothole")
+    assert "road_defects_br" in builtin_class_maps()
+    cfg = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    globs = cfg["tool"]["setuptools"]["package-data"]["roadtwin_core.render"]
+    shipped = [p for g in globs for p in (ROOT / "roadtwin_core/render").glob(g)]
+    assert ROOT / "roadtwin_core/render/classmaps/road_defects_br.toml" in shipped
+    m.check_labels(STAGE)      # every label it names exists in a stage with the standard defect types
+
+
+def test_class_map_on_a_hand_made_label_array_with_an_ego_mask():
+    assert STAGE[:5] == ["background", "driving", "junction", "sidewalk", "shoulder"]
+    sid = {n: i for i, n in enumerate(STAGE)}
+    labels = np.array([[sid["background"], sid["driving"], sid["driving"], sid["sidewalk"]],
+                       [sid["pothole"], sid["pothole"], sid["crack"], sid["manhole"]],
+                       [sid["shoulder"], sid["rut"], 255, sid["driving"]]], dtype=np.uint8)
+    ego = np.array([[1, 1, 0, 1],
+                    [1, 0, 1, 1],
+                    [1, 1, 1, 0]], dtype=bool)
+    # dataset ids: 0 background, 1 ego_lane, 2 crack, 3 pothole. Defects win over the lane,
+    # road surface inside the ego mask is ego lane, a manhole/rut outside it is background.
+    expected = np.array([[0, 1, 0, 0],
+                         [3, 3, 2, 1],
+                         [0, 1, 255, 0]], dtype=np.uint8)
+    m = load_class_map("road_defects_br")
+    assert np.array_equal(m.apply(labels, STAGE, ego), expected)
+    # without a frame's ego mask there is no ego lane
+    no_ego = expected.copy()
+    no_ego[no_ego == 1] = 0
+    assert np.array_equal(m.apply(labels, STAGE), no_ego)
+
+
+def test_class_map_unknown_ignore_and_bad_maps(tmp_path):
+    m = parse_class_map('classes = ["bg", "hole"]\nunknown = "ignore"\n[map]\nbg = ["background"]\nhole = ["pothole"]\n')
+    sid = {n: i for i, n in enumerate(STAGE)}
+    out = m.apply(np.array([sid["background"], sid["pothole"], sid["driving"]], np.uint8), STAGE)
+    assert out.tolist() == [0, 1, 255]
+    path = tmp_path / "mine.toml"
+    path.write_text('classes = ["bg", "hole"]\n[map]\nbg = ["background"]\nhole = ["potholes"]\n')
+    with pytest.raises(RoadtwinError) as err:
+        load_class_map(path).check_labels(STAGE, "town.usda")
+    msg = str(err.value)
+    assert "'potholes'" in msg and str(path) in msg and "town.usda" in msg and "\n" not in msg
+    for text, word in [('classes = ["a"]\n[map]\nb = ["x"]\n', "'b'"),
+                       ('classes = ["a", "b"]\n[map]\na = ["x"]\nb = ["x"]\n', "'x'"),
+                       ('classes = ["a"]\n[map]\na = {from = ["x"], rule = "left"}\n', "'left'"),
+                       ('classes = ["a"\n', "TOML")]:
+        with pytest.raises(RoadtwinError, match=word):
+            parse_class_map(text, "f.toml")
+    with pytest.raises(RoadtwinError, match="no class map 'nope'"):
+        load_class_map("nope")
+
+
+# ------------------------------------------------------------------------------ dataset folders
+def _write_pair(root: Path, stem: str, label: np.ndarray, img_ext=".jpg", sub=("images", "labels")):
+    (root / sub[0]).mkdir(parents=True, exist_ok=True)
+    (root / sub[1]).mkdir(parents=True, exist_ok=True)
+    h, w = label.shape
+    Image.fromarray(np.full((h, w, 3), 100, np.uint8)).save(root / sub[0] / f"{stem}{img_ext}")
+    Image.fromarray(label.astype(np.uint8)).save(root / sub[1] / f"{stem}.png")
+
+
+def test_dataset_folder_bad_inputs(tmp_path):
+    ok = np.zeros((8, 12), np.uint8)
+    unpaired = tmp_path / "unpaired"
+    _write_pair(unpaired, "a", ok)
+    _write_pair(unpaired, "b", ok)
+    (unpaired / "labels/b.png").rename(unpaired / "labels/c.png")
+    with pytest.raises(RoadtwinError) as err:
+        find_pairs(unpaired)
+    msg = str(err.value)
+    assert str(unpaired) in msg and "images/b.jpg" in msg and "labels/c.png" in msg and "\n" not in msg
+
+    empty = tmp_path / "empty"
+    (empty / "images").mkdir(parents=True)
+    (empty / "labels").mkdir()
+    with pytest.raises(RoadtwinError, match="empty"):
+        find_pairs(empty)
+    with pytest.raises(RoadtwinError, match="not a dataset folder"):
+        find_pairs(tmp_path / "empty" / "images")
+    with pytest.raises(RoadtwinError, match="no such"):
+        find_pairs(tmp_path / "missing")
+
+    bad = tmp_path / "bad"
+    lab = ok.copy()
+    lab[3, 4] = 7
+    _write_pair(bad, "x", lab)
+    with pytest.raises(RoadtwinError) as err:
+        load_folder(bad, num_classes=4)
+    assert "x.png" in str(err.value) and "7" in str(err.value)
+
+    small = tmp_path / "small"
+    _write_pair(small, "y", ok)
+    Image.fromarray(np.zeros((4, 6), np.uint8)).save(small / "labels/y.png")
+    with pytest.raises(RoadtwinError, match="6x4"):
+        load_folder(small, num_classes=4)
+
+
+def test_dataset_folder_reads_both_layouts(tmp_path):
+    lab = np.zeros((8, 12), np.uint8)
+    lab[2:5, 3:9] = 3
+    lab[0, 0] = 255                                    # ignore is allowed
+    _write_pair(tmp_path / "out/mmseg", "000001", lab, ".png", ("img_dir/train", "ann_dir/train"))
+    _write_pair(tmp_path / "out/mmseg", "000000", lab, ".png", ("img_dir/train", "ann_dir/train"))
+    pairs = find_pairs(tmp_path / "out")               # a render output root
+    assert [p.stem for p in pairs] == ["train/000000", "train/000001"]
+    (tmp_path / "out/images").mkdir()                  # ... which also holds RGB previews in images/
+    Image.fromarray(np.zeros((8, 12, 3), np.uint8)).save(tmp_path / "out/images/000000.png")
+    assert [p.stem for p in find_pairs(tmp_path / "out")] == ["train/000000", "train/000001"]
+    images, labels, stems = load_folder(tmp_path / "out", 4)
+    assert images.shape == (2, 8, 12, 3) and np.array_equal(labels[1], lab)
+    real = find_pairs(TINY / "train")
+    assert len(real) == 4 and all(p.image.suffix == ".jpg" for p in real)
+    torch = pytest.importorskip("torch")
+    from roadtwin_core.datasets.folders import SegmentationFolder
+
+    item = SegmentationFolder(TINY / "val", 4)[1]
+    ref = np.asarray(Image.open(sorted((TINY / "val/labels").glob("*.png"))[1]))
+    assert item["image"].shape == (3, 320, 512) and item["image"].dtype == torch.float32
+    assert np.array_equal(item["label"].numpy(), ref)
+
+
+# ------------------------------------------------------------------------------ the benchmark
+def make_standin_synthetic(root: Path, n: int = 4, size=(128, 80)) -> Path:
+    """A stand-in for rendered frames (MMSeg layout, class-mapped labels): a grey road trapezoid
+    (ego lane) with a dark pothole and a crack. For tests only, never for reported figures."""
+    w, h = size
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:h, 0:w]
+    for k in range(n):
+        img = np.zeros((h, w, 3), np.uint8)
+        img[:] = (150, 180, 220)
+        lab = np.zeros((h, w), np.uint8)
+        half = (yy - 0.3 * h) / h * w * 0.6
+        lane = (yy > 0.3 * h) & (np.abs(xx - w / 2) < half)
+        lab[lane], img[lane] = 1, (110, 110, 110)
+        cx, cy = rng.uniform(0.4, 0.6) * w, rng.uniform(0.6, 0.8) * h
+        hole = ((xx - cx) / 8) ** 2 + ((yy - cy) / 4) ** 2 < 1
+        lab[hole], img[hole] = 3, (40, 40, 40)
+        crack = lane & (np.abs(xx - (w / 2 + (yy - h / 2) * 0.5)) < 1)
+        lab[crack], img[crack] = 2, (60, 60, 60)
+        lab[:2, :] = 255
+        _write_pair(root, f"{k:06d}", lab, ".png", ("img_dir/train", "ann_dir/train"))
+        Image.fromarray(img).save(root / "img_dir/train" / f"{k:06d}.png")
+    return root
+
+
+def test_benchmark_one_step_smoke_on_real_frames(tmp_path, capsys):
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    out = tmp_path / "out"
+    rc = bench.main(["run", "--real", str(TINY), "--synthetic", str(synth), "--device", "cpu", "--steps", "1",
+                     "--pretrain-steps", "1", "--batch", "2", "--width", "4", "--size", "64x40", "--seeds", "0",
+                     "--fractions", "1", "0.5", "--out", str(out), "--bootstrap", "50"])
+    assert rc == 0
+    res = json.loads((out / "results_seed0.json").read_text())
+    assert set(res["runs"]) == {"zero-shot", "real@100%", "synth+real@100%", "real@50%", "synth+real@50%"}
+    # the arms run equal optimizer steps: (a) P + R on real, (b) P synthetic + R real
+    for frac in ("100%", "50%"):
+        assert [p["steps"] for p in res["runs"][f"real@{frac}"]["phases"]] == [1, 1]
+        assert [p["steps"] for p in res["runs"][f"synth+real@{frac}"]["phases"]] == [1, 1]
+    # per frame, sum over classes of (I + U) counts every valid pixel twice (a right pixel once in
+    # each, a wrong one in the unions of two classes)
+    val = [np.asarray(Image.open(p).resize((64, 40), Image.NEAREST)) for p in sorted((TINY / "val/labels").glob("*.png"))]
+    valid = np.array([(v != 255).sum() for v in val])
+    for run in res["runs"].values():
+        i, u = np.array(run["I"]), np.array(run["U"])
+        assert i.shape == (2, 4) and np.array_equal((i + u).sum(1), 2 * valid)
+    summary = json.loads((out / "results.json").read_text())
+    assert set(summary["gains"]) == {"synth+real@100%", "synth+real@50%"}
+    assert (out / "gains.png").stat().st_size > 0 and (out / "grid.png").stat().st_size > 0
+    assert "pothole" in capsys.readouterr().out
+
+
+def test_bad_benchmark_input_is_one_line(tmp_path, capsys):
+    pytest.importorskip("torch")
+    bench = _bench()
+    (tmp_path / "train/images").mkdir(parents=True)
+    (tmp_path / "train/labels").mkdir(parents=True)
+    assert bench.main(["train", "--real", str(tmp_path), "--device", "cpu", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "empty" in err and "\n" not in err
+
+
+def test_fixed_subset_and_iou_table():
+    bench = _bench()
+    a = bench.subset_indices(600, 0.1, 0)
+    assert len(a) == 60 and len(set(a)) == 60 and np.array_equal(a, bench.subset_indices(600, 0.1, 0))
+    # two frames, class 3 (pothole): I 2 + 1, U 4 + 8 -> 3 / 12; class 0 absent everywhere -> NaN
+    i = np.array([[0, 5, 0, 2], [0, 5, 1, 1]])
+    u = np.array([[0, 10, 2, 4], [0, 10, 2, 8]])
+    t = bench.iou_table(i, u)
+    assert t["pothole"] == pytest.approx(0.25) and t["crack"] == pytest.approx(0.25) and t["ego_lane"] == 0.5
+    assert np.isnan(t["background"]) and t["mIoU_fg"] == pytest.approx((0.5 + 0.25 + 0.25) / 3)
+
+
+def test_bootstrap_interval_known_answers():
+    bench = _bench()
+    rng = np.random.default_rng(1)
+    f = 400
+    ia = rng.binomial(1, 0.3, (f, 4)).astype(float)
+    u = np.ones((f, 4))
+    # identical arms: no gain, and every replicate agrees
+    same = bench.bootstrap_gain(ia, u, ia, u, n_boot=300)
+    assert all(v["gain"] == 0 and v["lo"] == 0 and v["hi"] == 0 for v in same.values())
+    # with unit unions the IoU is a mean, so the gain is a mean of paired differences: the
+    # bootstrap interval must match the normal one, mean +- 1.96 sd / sqrt(F)
+    ib = np.clip(ia + rng.binomial(1, 0.15, (f, 4)), 0, 1)
+    res = bench.bootstrap_gain(ia, u, ib, u, n_boot=4000, seed=3)
+    d = ib[:, 3] - ia[:, 3]
+    half = 1.96 * d.std(ddof=1) / np.sqrt(f)
+    assert res["pothole"]["gain"] == pytest.approx(d.mean())
+    assert res["pothole"]["lo"] == pytest.approx(d.mean() - half, abs=0.12 * half)
+    assert res["pothole"]["hi"] == pytest.approx(d.mean() + half, abs=0.12 * half)
+
+
+# ------------------------------------------------------------------------------- survey rig
+def test_survey_rig_estimate_recovers_a_known_camera():
+    """Label a 3.5 m lane seen by a known camera (ray-plane intersection through cameras.py),
+    then estimate: the horizon/width-slope geometry must give back height and pitch."""
+    import math
+
+    from roadtwin_core.render.cameras import RIG_PRESETS, Camera, Intrinsics, look_from
+
+    spec = importlib.util.spec_from_file_location("estimate_survey_rig", ROOT / "bench/estimate_survey_rig.py")
+    est = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(est)
+    k = Intrinsics.from_fov(512, 320, 60.0)
+    cam = Camera(k, look_from((0.0, 0.4, 2.3), 0.0, math.radians(-25.0)))
+    d, o = cam.rays()
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(d[..., 2] < 0, -o[2] / d[..., 2], np.inf)
+    y = o[1] + t * d[..., 1]
+    label = (np.isfinite(t) & (np.abs(y) < 1.75)).astype(np.uint8)
+    e = est.frame_estimate(label)
+    rig = est.rig_from(e["v_h"], e["slope"], e["u_vp"], 512, 320, 60.0, 3.5)
+    assert rig["height_m"] == pytest.approx(2.3, rel=0.02)
+    assert rig["pitch_down_deg"] == pytest.approx(25.0, abs=0.3)
+    assert abs(rig["yaw_deg"]) < 0.3
+    survey = RIG_PRESETS["survey"]
+    assert (survey.width, survey.height) == (512, 320) and survey.intrinsics().fx == pytest.approx(k.fx)
+    assert RIG_PRESETS["stereo"].baseline_m == 0.54
