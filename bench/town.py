@@ -4,6 +4,7 @@ phase split and output size, for 1,000 and 10,000 defects, in one run.
     .venv/bin/python bench/town.py                       # 1,000 and 10,000 defects
     .venv/bin/python bench/town.py --counts 1000 --executor ray
     .venv/bin/python bench/town.py --counts 1000 --preview-cost 3   # + what the preview adds
+    .venv/bin/python bench/town.py --counts 1000 --props-cost 3     # + what the props add (time, memory, size)
 
 Import: ``roadtwin import opendrive tests/data/opendrive/Town01.xodr`` in a fresh process (wall
 time, including interpreter start). Compose: the plain CLI, ``roadtwin compose town01.usda
@@ -33,7 +34,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 TARGETS = {1000: (10.0, 1024.0), 10000: (60.0, None)}   # defects -> (wall s, peak MB)
-PHASES = ("place", "merge", "markings", "textures", "write", "validate", "preview", "preview_wait")
+PHASES = ("place", "props", "merge", "markings", "textures", "write", "validate", "preview", "preview_wait")
 
 
 def run_cli(layout: Path, count: int, out: Path, extra: list[str]) -> dict:
@@ -66,12 +67,14 @@ def run_cli(layout: Path, count: int, out: Path, extra: list[str]) -> dict:
     wall = time.perf_counter() - t0
     code = os.waitstatus_to_exitcode(status)
     result = {"wall_s": wall, "peak_mb": peak / 2**20, "rss_mb": max(peak_rss, usage.ru_maxrss * 1024) / 2**20,
-              "ok": code == 0, "main_mb": usage.ru_maxrss / 1024.0}
+              "ok": code == 0, "main_mb": usage.ru_maxrss / 1024.0,
+              "cpu_s": usage.ru_utime + usage.ru_stime}   # the CLI and the helpers and workers it reaped
     if code:
         result["error"] = (log.read_text().strip().splitlines() or ["no output"])[-1]
         return result
     result["summary"] = json.loads((out / "summary.json").read_text())
     result["size_mb"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 2**20
+    result["usd_bytes"] = sum(p.stat().st_size for p in out.rglob("*.usd[ac]") if p.is_file())
     return result
 
 
@@ -111,6 +114,9 @@ def main() -> None:
     ap.add_argument("--preview-cost", type=int, default=0, metavar="PAIRS",
                     help="then compose the smallest count PAIRS times with and without --no-preview, "
                          "alternating, and print what the preview adds to the command's wall time")
+    ap.add_argument("--props-cost", type=int, default=0, metavar="PAIRS",
+                    help="then compose the smallest count PAIRS times with --props default and --props none, "
+                         "alternating, and print what the props add (wall time, peak memory, USD bytes)")
     args = ap.parse_args()
     extra = [a for k, v in (("--executor", args.executor), ("--workers", args.workers)) if v is not None
              for a in (k, str(v))]
@@ -151,6 +157,8 @@ def main() -> None:
             sys.stdout.flush()
         if args.preview_cost:
             preview_cost(layout, min(args.counts), args.preview_cost, Path(tmp), extra)
+        if args.props_cost:
+            props_cost(layout, min(args.counts), args.props_cost, Path(tmp), extra)
 
 
 def preview_cost(layout: Path, count: int, pairs: int, tmp: Path, extra: list[str]) -> None:
@@ -170,6 +178,46 @@ def preview_cost(layout: Path, count: int, pairs: int, tmp: Path, extra: list[st
           f"[{min(walls['preview']):.2f}-{max(walls['preview']):.2f}], --no-preview {med['no preview']:.2f} s "
           f"[{min(walls['no preview']):.2f}-{max(walls['no preview']):.2f}]: the preview adds "
           f"{med['preview'] - med['no preview']:.2f} s")
+
+
+def props_cost(layout: Path, count: int, pairs: int, tmp: Path, extra: list[str]) -> None:
+    """What the roadside world (``layers/props.usda``, on by default) adds: the plain compose
+    (``--props default``) against ``--props none``, alternated (medians): wall time, peak memory
+    (PSS of the process tree), the props' own phase (``props_s``: placement and terrain) and the
+    stage's USD bytes (the same for every run of one setting: same seed, same bytes)."""
+    import statistics
+
+    runs: dict[str, list[dict]] = {"default": [], "none": []}
+    for k in range(pairs):
+        for label in ("none", "default"):
+            r = run_cli(layout, count, tmp / f"props{k}{label}", extra + ["--props", label])
+            if not r.get("ok"):
+                sys.exit(f"compose failed: {r['error']}")
+            runs[label].append(r)
+            t = r["summary"]["timings_s"]
+            print(f"  pair {k + 1} --props {label:<7}: wall {r['wall_s']:.2f} s, cpu {r['cpu_s']:.2f} s, "
+                  f"peak {r['peak_mb']:.0f} MB, "
+                  f"props_s {t.get('props_s', 0.0):.2f}, merge_s {t['merge_s']:.2f}, write_s {t['write_s']:.2f}, "
+                  f"validate_s {t['validate_s']:.2f}, USD {r['usd_bytes']:,} B")
+            sys.stdout.flush()
+
+    def med(label, key):
+        return statistics.median(r[key] for r in runs[label])
+
+    def med_phases(label):      # the phases the props layer touches: written, then validated
+        return statistics.median(r["summary"]["timings_s"]["write_s"] + r["summary"]["timings_s"]["validate_s"]
+                                 for r in runs[label])
+    with_, without = runs["default"][0], runs["none"][0]
+    usd_a, usd_b = with_["usd_bytes"], without["usd_bytes"]
+    print(f"\nprops cost at {count} defects ({pairs} pairs, medians): wall {med('default', 'wall_s'):.2f} s with, "
+          f"{med('none', 'wall_s'):.2f} s without ({med('default', 'wall_s') - med('none', 'wall_s'):+.2f} s); "
+          f"cpu {med('default', 'cpu_s'):.2f} s with, {med('none', 'cpu_s'):.2f} s without "
+          f"({med('default', 'cpu_s') - med('none', 'cpu_s'):+.2f} s); "
+          f"peak {med('default', 'peak_mb'):.0f} MB with, {med('none', 'peak_mb'):.0f} MB without; "
+          f"props_s {statistics.median(r['summary']['timings_s']['props_s'] for r in runs['default']):.2f} s; "
+          f"write + validate {med_phases('default'):.2f} s with, {med_phases('none'):.2f} s without; "
+          f"{with_['summary']['props']['instances']} instances; USD {usd_a:,} B with, {usd_b:,} B without "
+          f"({100.0 * (usd_a - usd_b) / usd_b:+.2f} %)")
 
 
 if __name__ == "__main__":

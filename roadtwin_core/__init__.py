@@ -23,7 +23,7 @@ import importlib
 # scipy and pluggy through the data model, surfaces and plugin manager.
 _WHERE = {
     **dict.fromkeys(("DatasetFormat", "DefectType", "Exporter", "LayoutImporter", "Merger", "PhysicsBackend",
-                     "Planner", "Reconstructor", "Renderer", "RendererBase", "SurfaceSource"), "contracts"),
+                     "Planner", "Reconstructor", "Renderer", "RendererBase", "Sensor", "SurfaceSource"), "contracts"),
     "RoadtwinError": "errors",
     **dict.fromkeys(("MARKING_TYPES", "ComposeRules", "DefectModel", "FixedDefect", "LaneMarking", "MergedSegment",
                      "Placement", "RoadSegment", "TownLayout", "polygon_area", "triangle_areas"), "model"),

@@ -21,13 +21,18 @@ from pathlib import Path
 from typing import Any, Iterator, Literal, Protocol, runtime_checkable
 
 __all__ = ["DefectType", "Reconstructor", "Merger", "LayoutImporter", "Renderer", "RendererBase",
-           "PhysicsBackend", "Planner", "Exporter", "SurfaceSource", "DatasetFormat", "PROTOCOLS", "check",
+           "PhysicsBackend", "Planner", "Exporter", "SurfaceSource", "DatasetFormat", "Sensor", "PROTOCOLS", "check",
            "params_class", "configured"]
 
 
 @runtime_checkable
 class DefectType(Protocol):
-    """A parametric defect generator. Same params and rng state give the same model."""
+    """A parametric defect generator. Same params and rng state give the same model.
+
+    Two optional class attributes, read with defaults (a type without them is a defect at a
+    random yaw): ``semantic_class`` (default ``"road_defect"``; another class, e.g. a look-alike's
+    ``"road_lookalike"``, is labelled ``["road", <class>, <name>]``) and ``along_travel`` (default
+    False: True yaws instances with the lane, like ruts). docs/plugins.md#roadtwin_register_defect_types."""
 
     name: str
     description: str
@@ -45,9 +50,11 @@ class Reconstructor(Protocol):
     """Sensor data -> a surface or defect models, in two steps so the CLI can report before writing.
 
     ``produces`` is ``"surface"`` (``roadtwin reconstruct surface``) or ``"defects"``
-    (``roadtwin reconstruct defects``). ``inputs`` is a dict whose keys and checks are
-    :class:`roadtwin_core.apps.reconstruct.SurfaceInputs` and
-    :class:`~roadtwin_core.apps.reconstruct.DefectInputs` (their ``as_dict()`` is what the command
+    (``roadtwin reconstruct defects``, and ``reconstruct photos`` for a photo reconstructor).
+    ``inputs`` is a dict whose keys and checks are
+    :class:`roadtwin_core.apps.reconstruct.SurfaceInputs`,
+    :class:`~roadtwin_core.apps.reconstruct.DefectInputs` and, for photos,
+    :class:`~roadtwin_core.apps.reconstruct.PhotoSet` (their ``as_dict()`` is what the command
     passes). The command also sets these ``Params`` fields from its options, so the dataclass
     declares them: ``voxel_m``, ``radius_m``, ``align`` (surface); ``disparity_scale``, ``grid_m``
     (defects). Of the result it reads: a surface's ``vertices`` and ``faces`` (a
@@ -201,14 +208,34 @@ class DatasetFormat(Protocol):
         ``finish()`` runs once after the last frame."""
 
 
+@runtime_checkable
+class Sensor(Protocol):
+    """A sensor model a rig file names by ``type``. ``message`` is what its samples are (imu |
+    gnss | image | stereo | points: the drive's writers turn them into ROS 2 messages and rerun
+    entities). ``create`` mounts one: the result has ``id``, ``rate_hz``, ``extrinsic`` (4x4, the
+    sensor frame in the body frame) and ``sample(state, world) -> dict``; ``state`` is the vehicle
+    at ``state.t`` on the drive's clock (``pose_at(t)``, ``velocity_at(t)``,
+    ``imu_truth(offset, t0, t1)``), ``world`` the scene's services (``render(cameras)``,
+    ``cast(origins, dirs)``, ``class_names``)."""
+
+    name: str
+    description: str
+    Params: type
+    message: str
+
+    def create(self, sensor_id, rate_hz, extrinsic, params) -> Any:
+        """-> a mounted sensor."""
+
+
 PROTOCOLS: dict[str, type] = {
     "defect_types": DefectType, "reconstructors": Reconstructor, "mergers": Merger,
     "layout_importers": LayoutImporter, "renderers": Renderer, "physics_backends": PhysicsBackend,
     "planners": Planner, "exporters": Exporter, "surface_sources": SurfaceSource,
-    "dataset_formats": DatasetFormat,
+    "dataset_formats": DatasetFormat, "sensors": Sensor,
 }
 
 _PRODUCES = ("surface", "defects")
+_MESSAGES = ("imu", "gnss", "image", "stereo", "points")  # what a sensor's samples are (Sensor.message)
 
 
 def _members(protocol: type) -> tuple[list[str], dict[str, inspect.Signature]]:
@@ -263,6 +290,8 @@ def check(kind: str, thing: Any) -> list[str]:
         problems.append("Params must be a dataclass")
     if "produces" in data and hasattr(thing, "produces") and thing.produces not in _PRODUCES:
         problems.append(f"produces must be one of {', '.join(_PRODUCES)}, got {thing.produces!r}")
+    if "message" in data and hasattr(thing, "message") and thing.message not in _MESSAGES:
+        problems.append(f"message must be one of {', '.join(_MESSAGES)}, got {thing.message!r}")
     if "suffix" in data and hasattr(thing, "suffix") and not (isinstance(thing.suffix, str)
                                                              and thing.suffix.startswith(".")):
         problems.append(f"suffix must be a string starting with '.', got {thing.suffix!r}")

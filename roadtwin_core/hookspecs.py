@@ -72,3 +72,9 @@ def roadtwin_register_surface_sources(register):
 def roadtwin_register_dataset_formats(register):
     """Dataset layouts for ``roadtwin render --formats NAME`` beyond the core's kitti / mmseg /
     coco / depth / normal: :class:`~roadtwin_core.contracts.DatasetFormat`."""
+
+
+@hookspec
+def roadtwin_register_sensors(register):
+    """Sensor models a drive's rig mounts on the vehicle (IMU, GNSS, cameras, LiDAR ...):
+    :class:`~roadtwin_core.contracts.Sensor`."""

@@ -18,7 +18,7 @@ from .errors import RoadtwinError
 ENTRY_POINT_GROUP = "roadtwin"
 ALLOW_ENV = "ROADTWIN_PLUGINS"
 KINDS = ("defect_types", "reconstructors", "mergers", "layout_importers", "renderers",
-         "physics_backends", "planners", "exporters", "surface_sources", "dataset_formats")
+         "physics_backends", "planners", "exporters", "surface_sources", "dataset_formats", "sensors")
 
 hookimpl = pluggy.HookimplMarker("roadtwin")
 

@@ -6,8 +6,9 @@ apart from :class:`~roadtwin_core.RoadtwinError` and, for the simulator's ground
 
 - :mod:`.reconstruct` -- frames + poses -> fused road points -> RANSAC ground plane to Z-up ->
   XY voxel downsample -> trimmed Delaunay -> robust local-plane elevation per vertex;
-- :mod:`.simulate` -- a Livox-like rosette LiDAR simulator (range noise, dropouts, several frames
-  along a path) over a known mesh, and the ISO 8608 + pothole ground truth for tests and bench.
+- :mod:`.simulate` -- the ISO 8608 + pothole ground truth for tests and bench, and how a
+  reconstruction is scored against it (the rosette scan simulator that scans it is a sensor
+  model: ``roadtwin_sensors.simulate_scans``).
 
 Inputs of ``reconstruct(inputs, params)`` (a dict): ``frames`` (paths, or (N, 3) arrays),
 ``poses`` (a KITTI / TUM pose file path, or an (F, 4, 4) array; omitted with one frame = world
@@ -42,14 +43,12 @@ from roadtwin_core.usd import apply_labels, new_stage, read_mesh, safe_prim_name
 
 from .reconstruct import (apply, check_points, fuse_frames, ground_alignment, intrinsics, load_extrinsic, load_frame, load_mask,
                           load_poses, local_heights, mask_road_points, surface_mesh)
-from .simulate import (RosetteScanner, path_poses, pothole_road_mesh, raycasting_scene, rosette_directions,
-                       save_frames, simulate_scans, vertical_heights)
+from .simulate import _raycasting_scene, _vertical_heights, pothole_road_mesh, save_frames
 
-__all__ = ["LidarSurfaceReconstructor", "LidarSurface", "LidarSurfaceParams", "RosetteScanner", "apply",
+__all__ = ["LidarSurfaceReconstructor", "LidarSurface", "LidarSurfaceParams", "apply",
            "fuse_frames", "ground_alignment", "intrinsics", "load_extrinsic", "load_frame", "load_mask", "load_poses",
-           "local_heights", "mask_road_points", "path_poses",
-           "pothole_road_mesh", "raycasting_scene", "read_surface_asset", "rosette_directions", "save_frames",
-           "simulate_scans", "surface_mesh", "vertical_heights", "write_surface_asset"]
+           "local_heights", "mask_road_points", "pothole_road_mesh", "read_surface_asset", "save_frames",
+           "surface_mesh", "write_surface_asset"]
 
 DEFAULT_ROAD_LABELS = (40, 44)
 
@@ -89,8 +88,8 @@ class LidarSurface(SurfaceModel):
     def height(self, xy: np.ndarray) -> np.ndarray:
         xy = np.atleast_2d(np.asarray(xy, np.float64))
         if self._scene is None:
-            self._scene = raycasting_scene(self.vertices, self.faces)
-        z = vertical_heights(self._scene, xy, top=float(self.vertices[:, 2].max()) + 10.0)
+            self._scene = _raycasting_scene(self.vertices, self.faces)
+        z = _vertical_heights(self._scene, xy, top=float(self.vertices[:, 2].max()) + 10.0)
         miss = ~np.isfinite(z)
         if miss.any():
             if self._sampled is None:

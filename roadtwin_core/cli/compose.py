@@ -32,6 +32,8 @@ def compose(
     workers: Optional[int] = typer.Option(None, "--workers", help="worker processes (default: all cores)"),
     library: Optional[Path] = typer.Option(None, "--library", help="folder of defect assets mixed with the parametric models"),
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"merger {PARAM_HELP}"),
+    props: str = typer.Option("default", "--props",
+                              help="the roadside world (layers/props.usda): default | none | RULES.toml"),
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from ..apps.compose.run import compose as run_compose
@@ -51,7 +53,7 @@ def compose(
 
         result = run_compose(layout, out, defects=defects, seed=seed, merger=merger, surface=surface,
                              progress=report, preview=preview, executor=executor, ray_address=ray_address,
-                             workers=workers, library_dir=library, merger_params=merger_params)
+                             workers=workers, library_dir=library, merger_params=merger_params, props=props)
     _print_summary(result)
 
 
@@ -65,6 +67,7 @@ def _print_summary(result: ComposeResult) -> None:
             ("straddling defects", s["straddling_defects"]), ("triangles", s["triangles"]),
             ("road area (m²)", f"{s['road_area_m2']:.1f}"), ("defect area (m²)", f"{s['defect_area_m2']:.2f}"),
             ("defect volume (m³)", f"{s['defect_volume_m3']:.4f}"),
+            ("props", s["props"]["instances"]),
             ("validation errors", s["validation"]["errors"]),
             ("time (s)", " / ".join(f"{k[:-2]} {v:.2f}" for k, v in s["timings_s"].items()))]
     for k, v in rows:

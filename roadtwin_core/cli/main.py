@@ -9,6 +9,7 @@ import typer
 
 from ..errors import RoadtwinError
 from .compose import compose
+from .drive import drive
 from .errors import fail
 from .library import library_app
 from .plan import plan
@@ -31,6 +32,7 @@ app.command("render")(render)
 app.add_typer(rig_app, name="rig")
 app.command("plan")(plan)
 app.command("sweep")(sweep)
+app.command("drive")(drive)
 app.add_typer(library_app, name="library")
 app.add_typer(reconstruct_app, name="reconstruct")
 

@@ -1,9 +1,10 @@
 """``roadtwin reconstruct defects``: stereo defect reconstruction (the paper's fine stream);
-``roadtwin reconstruct surface``: LiDAR road surface reconstruction (the coarse stream).
+``roadtwin reconstruct surface``: LiDAR road surface reconstruction (the coarse stream);
+``roadtwin reconstruct photos``: labelled road photos -> textured defect library assets.
 
 Options only: the text options are parsed here into the typed inputs of
 :mod:`roadtwin_core.apps.reconstruct`, which checks them and runs the reconstructor plugins
-(``stereo_defects``, ``lidar_surface``). Bad input raises :class:`~roadtwin_core.RoadtwinError`,
+(``stereo_defects``, ``lidar_surface``, ``photo_defects``). Bad input raises :class:`~roadtwin_core.RoadtwinError`,
 printed by ``roadtwin``'s ``main`` as one line (exit 2), and nothing is written.
 """
 from __future__ import annotations
@@ -18,7 +19,7 @@ from .._console import console
 from ..errors import RoadtwinError
 from ..params import PARAM_HELP, parse_param_options
 
-__all__ = ["reconstruct_app", "reconstruct_defects_command", "reconstruct_surface_command"]
+__all__ = ["reconstruct_app", "reconstruct_defects_command", "reconstruct_photos_command", "reconstruct_surface_command"]
 
 reconstruct_app = typer.Typer(help="Real sensor data -> road surface and defect models.", no_args_is_help=True)
 
@@ -112,3 +113,49 @@ def _road_labels(text: str) -> list[int] | None:
     if not all(math.isfinite(v) and v == int(v) and 0 <= v < 2**32 for v in values):
         raise RoadtwinError(f"--road-labels: label values are integers in 0..{2**32 - 1}, got {text!r}")
     return [int(v) for v in values]
+
+
+@reconstruct_app.command("photos")
+def reconstruct_photos_command(
+    images: list[Path] = typer.Argument(..., help="photos (files, or folders of .jpg/.png)"),
+    labels: Path = typer.Option(..., "--labels", help="label folder: <image stem>.png, one class id per pixel"),
+    classmap: str = typer.Option("builtin:road_defects_br", "--classmap", help="class map of the labels: a TOML "
+                                 "file or builtin:NAME (its classes filled from a defect type are reconstructed)"),
+    rig: str = typer.Option("survey", "--rig", help="camera rig preset, optionally with overrides: "
+                            "survey:pitch=-24,height=2.4,roll=0,hfov=60 (also width, height_px: the size the "
+                            "rig is given at)"),
+    license_text: Optional[str] = typer.Option(None, "--license", help="license recorded on every asset (default: "
+                                               "the first line of a LICENSE file beside the photos)"),
+    out: Path = typer.Option(..., "-o", "--out", help="library folder (replaced atomically): NAME.usda + "
+                             "NAME.geom.usda per instance, textures/, instances.json"),
+    reconstructor: str = typer.Option("photo_defects", "--reconstructor", help="reconstructor plugin"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
+) -> None:
+    """Labelled photos -> textured defect library assets (back-projected through the rig onto the road)."""
+    from ..apps.reconstruct import PhotoInputs, reconstruct_photos
+
+    preset, overrides = _rig_spec(rig)
+    inputs = PhotoInputs(images=list(images), labels=labels, classmap=classmap, rig=preset, rig_overrides=overrides,
+                         license=license_text)
+    done = reconstruct_photos(inputs, out, reconstructor=reconstructor, params=parse_param_options(param))
+    by_type: dict[str, int] = {}
+    for m in done.result.models:
+        by_type[m.defect_type] = by_type.get(m.defect_type, 0) + 1
+    console.print(f"wrote {out}: {len(done.paths)} asset(s) from {done.photos} photo(s) "
+                  f"({', '.join(f'{n} {t}' for t, n in sorted(by_type.items()))}); "
+                  f"{len(done.result.skipped)} instance(s) skipped (smaller than min_pixels or min_area_m2)")
+
+
+def _rig_spec(text: str) -> tuple[str, dict[str, float]]:
+    """``--rig``: ``PRESET`` or ``PRESET:key=value,...`` -> (preset, {key: number})."""
+    name, _, rest = text.partition(":")
+    overrides: dict[str, float] = {}
+    for item in filter(None, (x.strip() for x in rest.split(","))):
+        key, eq, value = (x.strip() for x in item.partition("="))
+        try:
+            if not eq:
+                raise ValueError
+            overrides[key] = float(value)
+        except ValueError:
+            raise RoadtwinError(f"--rig: expected key=number in {text!r}, got {item!r}") from None
+    return name.strip(), overrides

@@ -34,7 +34,11 @@ ROAD_MATERIAL_VARIANTS = {"asphalt": "asphalt_worn", "cobblestone": "cobblestone
 VERGE_MATERIAL_VARIANTS = {"grass": "grass", "gravel": "gravel", "soil": "soil"}
 # Defect types -> material; unknown types use the worn asphalt of the road around them.
 DEFECT_MATERIAL = {"pothole": "pothole", "crack": "crack", "rut": "worn", "depression": "worn",
-                   "bump": "asphalt", "manhole": "cast_iron", "patch": "patch"}
+                   "bump": "asphalt", "manhole": "cast_iron", "patch": "patch",
+                   # look-alikes (plugins/roadtwin_lookalikes): not defects, each its own finish
+                   "oil_stain": "oil_stain", "tar_stain": "tar", "sealed_crack": "tar", "patch_seam": "tar",
+                   "tyre_mark": "tyre_mark", "wet_patch": "wet_patch", "puddle": "puddle", "debris": "debris",
+                   "worn_paint": "paint_worn", "ghost_paint": "paint_ghost"}
 MARKING_MATERIAL = {"white": "paint_white", "yellow": "paint_yellow"}
 # Written and authored like the others but bound by no default rule: a user (or a variant) binds them.
 OPTIONAL_MATERIALS = ("pothole_wet",)

@@ -3,8 +3,9 @@
 Why per-map resolutions: a 4 m tile needs ~4 mm texels for asphalt aggregate to read at
 camera distance, but roughness varies slowly and normals carry little above 8 mm, so those are
 stored at 1/2-1/4 of the diffuse size (block means of the same field: still seamless). That
-keeps the default set (``size`` 1024) to ~13.7 MB of PNG and ~2 s of CPU (verge and shoulder
-maps, seen from further away, at 1/2 and 1/4 of it: ~2.8 MB, ~0.6 s). Images are in the usual order
+keeps the default set (``size`` 1024) to ~14.7 MB of PNG and ~2 s of CPU (verge and shoulder
+maps, seen from further away, at 1/2 and 1/4 of it: ~2.8 MB, ~0.6 s; the look-alikes' small
+features at 1/4-1/8: ~1 MB). Images are in the usual order
 (row 0 = top = v 1, as UsdUVTexture reads st (0, 0) at the bottom-left); normal maps are
 tangent space (x along u, y along v, z out) encoded as (n + 1) / 2 in 0..255; roughness is
 linear; diffuse is sRGB.
@@ -21,7 +22,7 @@ import PIL
 from PIL import Image
 
 from ..errors import RoadtwinError
-from . import _asphalt, _finishes, _masonry, _roadside
+from . import _asphalt, _finishes, _lookalikes, _masonry, _roadside
 from ._noise import block_mean, linear_to_srgb8, normal_map, unit_to_u8
 from ._surface import Surface
 from .catalog import MaterialSpec
@@ -59,6 +60,17 @@ _GROUPS: dict[str, tuple[Callable, tuple[float, float, float], str]] = {
     "paint_white": (_one(_finishes.paint_white), (0.5, 0.25, 0.25), "white road paint, slightly worn"),
     "paint_yellow": (_one(_finishes.paint_yellow), (0.5, 0.25, 0.25), "yellow road paint, slightly worn"),
     "cast_iron": (_one(_finishes.cast_iron), (0.5, 0.5, 0.25), "manhole cover: cast iron, diamond studs, rust"),
+    # look-alikes (plugins/roadtwin_lookalikes): small features seen from 5-25 m (a survey pixel
+    # there is 1-4 cm): diffuse at 1/4 size (16 mm texels at the default 1024), normal and
+    # roughness at 1/8; all eight add ~1 MB
+    "oil_stain": (_one(_lookalikes.oil_stain), (0.25, 0.125, 0.125), "look-alike: oil soaked into worn asphalt"),
+    "tar": (_one(_lookalikes.tar), (0.25, 0.125, 0.125), "look-alike: crack sealant / bled tar, glossy black"),
+    "tyre_mark": (_one(_lookalikes.tyre_mark), (0.25, 0.125, 0.125), "look-alike: rubber skid mark"),
+    "wet_patch": (_one(_lookalikes.wet_patch), (0.25, 0.125, 0.125), "look-alike: damp asphalt, glossy"),
+    "puddle": (_one(_lookalikes.puddle), (0.25, 0.125, 0.125), "look-alike: standing water, mirror-smooth"),
+    "debris": (_one(_lookalikes.debris), (0.25, 0.125, 0.125), "look-alike: soil, gravel and litter on the lane"),
+    "paint_worn": (_one(_lookalikes.paint_worn), (0.25, 0.125, 0.125), "look-alike: paint worn through"),
+    "paint_ghost": (_one(_lookalikes.paint_ghost), (0.25, 0.125, 0.125), "look-alike: ground-off paint"),
 }
 # Materials that reuse another's normal map (same geometry, different finish).
 _SHARED_NORMAL = {"pothole_wet": "pothole"}

@@ -195,12 +195,45 @@ def vehicle_height(ground: GroundFn, xy: np.ndarray, heading: np.ndarray) -> np.
     return np.where(count > 0, total / np.maximum(count, 1), np.nan)
 
 
+@dataclass(frozen=True)
+class KeepOut:
+    """Plan discs cameras stay out of: things standing in the lanes (a stopped car), each
+    ``xy`` (N,2) with the radius that holds it (N,), grown by ``margin_m``."""
+
+    xy: np.ndarray
+    radius: np.ndarray
+    margin_m: float = 3.5
+
+    def clear(self, xy: np.ndarray) -> bool:
+        """Whether the plan point ``xy`` lies outside every disc."""
+        if not len(self.xy):
+            return True
+        d2 = ((self.xy - np.asarray(xy, np.float64)[:2]) ** 2).sum(axis=1)
+        return bool((d2 >= (self.radius + self.margin_m) ** 2).all())
+
+
+NO_KEEP_OUT = KeepOut(np.zeros((0, 2)), np.zeros(0))
+
+
+def lane_keep_out(town, margin_m: float = 3.5) -> KeepOut:
+    """The props a composed town stands in its driving lanes (``TownScene.instances`` of
+    instancers placed ``lane``: stopped vehicles) as a :class:`KeepOut`: a survey camera on or
+    just behind one would sit inside or against a car."""
+    held = [inst for inst in getattr(town, "instances", ()) if inst.place == "lane" and len(inst.positions)]
+    if not held:
+        return NO_KEEP_OUT
+    return KeepOut(np.concatenate([np.asarray(i.positions, np.float64)[:, :2] for i in held]),
+                   np.concatenate([np.asarray(i.radii, np.float64) for i in held]), margin_m)
+
+
 def sample_lane_poses(lanes: Sequence[Lane], n: int, rng: np.random.Generator, ground: GroundFn, *,
                       height: float = 1.5, yaw_jitter_deg: float = 20.0, pitch_deg: tuple = (-30.0, -5.0),
-                      roll_jitter_deg: float = 2.0, lateral_jitter_m: float = 0.4) -> list[np.ndarray]:
+                      roll_jitter_deg: float = 2.0, lateral_jitter_m: float = 0.4,
+                      keep_out: KeepOut = NO_KEEP_OUT) -> list[np.ndarray]:
     """``n`` random cam_to_world poses on lanes: a point uniform in arc length over all lanes,
     shifted sideways a little, ``height`` m above the road, looking down the lane with random
-    yaw / pitch / roll jitter (random poses reduce view bias, as in the paper)."""
+    yaw / pitch / roll jitter (random poses reduce view bias, as in the paper); never inside
+    ``keep_out`` (vehicles standing in the lanes)."""
     usable = _usable(lanes)
     if not usable:
         raise RoadtwinError("no lane centerline to place cameras on")
@@ -211,13 +244,15 @@ def sample_lane_poses(lanes: Sequence[Lane], n: int, rng: np.random.Generator, g
         tries += 1
         if tries > 50 * n + 100:
             raise RoadtwinError(f"could not place {n} cameras on the road: the lanes' ground is missing "
-                                f"under their centerlines (placed {len(poses)})")
+                                f"under their centerlines, or vehicles stand there (placed {len(poses)})")
         lane = usable[rng.choice(len(usable), p=lengths / lengths.sum())]
         s = rng.uniform(0.0, lane.length)
         heading = float(lane.heading(np.array([s]))[0])
         xy = lane.at(np.array([s]))[0]
         side = rng.uniform(-lateral_jitter_m, lateral_jitter_m)
         xy = xy + side * np.array([-math.sin(heading), math.cos(heading)])
+        if not keep_out.clear(xy):
+            continue
         z = vehicle_height(ground, xy[None], np.array([heading]))[0]
         if not np.isfinite(z):
             continue

@@ -62,6 +62,7 @@ class ClassMap:
     optional: frozenset[str] = frozenset()
     source: str = "<class map>"                   # the file, for messages
     dilate_px: tuple[tuple[str, int], ...] = ()   # (dataset class, pixels) grown after mapping
+    camera_targets: str | None = None             # camera targets (randomize.Ranges.from_targets) for --randomize
 
     @property
     def labels(self) -> list[str]:
@@ -177,7 +178,7 @@ def parse_class_map(text: str, source: str = "<class map>") -> ClassMap:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise RoadtwinError(f"{source}: not valid TOML ({exc})") from None
-    known_keys = {"name", "classes", "unknown", "optional", "map", "dilate_px"}
+    known_keys = {"name", "classes", "unknown", "optional", "map", "dilate_px", "camera_targets"}
     extra = sorted(set(data) - known_keys)
     if extra:
         raise RoadtwinError(f"{source}: unknown key {extra[0]!r} (known: {', '.join(sorted(known_keys))})")
@@ -225,6 +226,10 @@ def parse_class_map(text: str, source: str = "<class map>") -> ClassMap:
             raise RoadtwinError(f"{source}: [dilate_px] entry {cls!r} is not one of the classes ({', '.join(classes)})")
         if not isinstance(px, int) or isinstance(px, bool) or not 0 <= px <= 16:
             raise RoadtwinError(f"{source}: [dilate_px] {cls} must be an integer number of pixels in 0..16, got {px!r}")
+    targets = data.get("camera_targets")
+    if targets is not None and not (isinstance(targets, str) and targets):
+        raise RoadtwinError(f"{source}: camera_targets must be the name or path of a camera targets file")
     return ClassMap(name=str(data.get("name", Path(source).stem)), classes=tuple(classes), plain=plain, ego=ego,
+                    camera_targets=targets,
                     unknown=None if unknown == "ignore" else unknown, optional=frozenset(optional), source=source,
                     dilate_px=tuple(sorted(dilate.items(), key=lambda kv: classes.index(kv[0]))))

@@ -16,15 +16,25 @@ and nothing else, so frames rendered on different workers or in another order co
   and recorded but not rendered yet;
 * :class:`ImageEffects` applied to the rendered *linear* RGB by :func:`apply_sensor`, in the
   order light goes through a camera: motion blur (integration over the exposure while the car
-  moves) -> vignetting (optics) -> exposure -> photon (Poisson) + read (Gaussian) noise on the
-  sensor -> white-balance gains (ISP) -> tone curve and sRGB -> 8 bit -> JPEG. Labels, depth and
-  every other annotation stay untouched (a blurred label would be a wrong label).
+  moves) -> optics blur -> vignetting (optics) -> auto-exposure -> exposure -> photon (Poisson) +
+  read (Gaussian) noise on the sensor -> white-balance gains and saturation (ISP) -> tone curve
+  and sRGB -> 8 bit -> JPEG. Labels, depth and every other annotation stay untouched (a blurred
+  label would be a wrong label).
+
+Camera targets (:meth:`Ranges.from_targets`): ranges measured from a dataset's real train frames
+by ``bench/camera_stats.py`` (``camera_targets/<name>.json``, selected by a class map's
+``camera_targets`` key). Optics blur, saturation and the auto-exposure target are identity
+unless a targets file sets them, and they draw from a stream of their own, so a render without
+targets is byte-identical to one made before they existed.
 """
 from __future__ import annotations
 
 import io
+import json
 import math
-from dataclasses import asdict, dataclass, field, replace
+from importlib import resources
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
 
 import numpy as np
 from PIL import Image
@@ -35,6 +45,7 @@ from .frames import RenderParams
 from .tonemap import to_srgb8
 
 _STREAM_DRAW, _STREAM_NOISE = 0, 1
+_LUMA = (0.2126, 0.7152, 0.0722)          # Rec. 709 luminance of linear RGB
 
 
 @dataclass(frozen=True)
@@ -66,6 +77,45 @@ class Ranges:
     pothole_brightness: tuple[float, float] = (0.6, 2.4)  # log-uniform multiplier of the interior's albedo
     pothole_warmth: tuple[float, float] = (0.0, 0.3)      # red up, blue down: exposed lateritic base course
     pothole_wet_probability: float = 0.15                 # the glossy, darker wet interior
+    # Camera targets (bench/camera_stats.py): identity unless a targets file sets them
+    saturation: tuple[float, float] = (1.0, 1.0)          # ISP saturation (mix with luminance, linear)
+    optics_blur_px: tuple[float, float] = (0.0, 0.0)      # Gaussian sigma of the lens + demosaic blur
+    frame_luminance: tuple[float, float] | None = None    # auto-exposure: the frame's mean linear luminance
+
+    @classmethod
+    def from_targets(cls, spec: str | Path, base: "Ranges | None" = None) -> "Ranges":
+        """``base`` (default: these defaults) with the ``ranges`` of a camera targets file, a
+        path or a built-in name (``roadtwin_core/render/camera_targets/<name>.json``, written by
+        ``bench/camera_stats.py`` from real frames). Keys that are not fields are records only."""
+        path = Path(spec)
+        if path.suffix != ".json" and not path.exists():
+            res = resources.files(__package__).joinpath("camera_targets", f"{spec}.json")
+            if not res.is_file():
+                raise RoadtwinError(f"no camera targets {str(spec)!r}: not a file, nor a built-in one")
+            text, source = res.read_text(encoding="utf-8"), f"{spec} (built-in)"
+        else:
+            try:
+                text, source = path.read_text(encoding="utf-8"), str(path)
+            except (OSError, UnicodeDecodeError) as exc:
+                raise RoadtwinError(f"{path}: cannot read the camera targets ({exc})") from None
+        try:
+            found = json.loads(text)["ranges"]
+        except (ValueError, KeyError, TypeError):
+            raise RoadtwinError(f"{source}: not a camera targets file (no 'ranges' table)") from None
+        names = {f.name: f for f in fields(cls)}
+        changes = {}
+        for key, value in found.items():
+            if key not in names or value is None:
+                continue
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                value = [value, value]                                  # a measured ratio: no spread
+            if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value)):
+                raise RoadtwinError(f"{source}: ranges.{key} must be [lo, hi], got {value!r}")
+            lo, hi = value
+            if not lo <= hi:
+                raise RoadtwinError(f"{source}: ranges.{key} must have lo <= hi, got {value!r}")
+            changes[key] = (int(lo), int(hi)) if key == "jpeg_quality" else (float(lo), float(hi))
+        return replace(base or cls(), **changes).check()
 
     def check(self) -> "Ranges":
         lo, hi = self.jpeg_quality
@@ -79,6 +129,9 @@ class Ranges:
                 raise RoadtwinError(f"randomization: {name} must be in [0, 1], got {getattr(self, name)}")
         if min(self.gain) < 0 or min(self.read_noise) < 0 or min(self.exposure_time_s) <= 0:
             raise RoadtwinError("randomization: noise gains, read noise and exposure times must be >= 0 (> 0 for times)")
+        if min(self.saturation) < 0 or min(self.optics_blur_px) < 0 or (
+                self.frame_luminance is not None and min(self.frame_luminance) <= 0):
+            raise RoadtwinError("randomization: saturation and optics blur must be >= 0, frame luminance > 0")
         return self
 
 
@@ -111,9 +164,16 @@ class ImageEffects:
     vignetting: float = 0.0        # 0 none, 1 natural cos^4 falloff
     jpeg_quality: int = 95
     noise_seed: tuple[int, ...] = (0,)
+    saturation: float = 1.0        # 1: as rendered
+    blur_px: float = 0.0           # Gaussian sigma of the optics (0: none)
+    target_luminance: float | None = None   # mean linear luminance the exposure aims at (None: fixed exposure)
+
+    _IDENTITY = {"saturation": 1.0, "blur_px": 0.0, "target_luminance": None}
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The fields, less the camera-target ones at their identity (a frame record without
+        targets reads as it did before they existed)."""
+        return {k: v for k, v in asdict(self).items() if not (k in self._IDENTITY and v == self._IDENTITY[k])}
 
 
 @dataclass(frozen=True)
@@ -170,6 +230,14 @@ def draw(seed: int, index: int, base: RenderParams | None = None, ranges: Ranges
                            vignetting=u(ranges.vignetting),
                            jpeg_quality=int(rng.integers(ranges.jpeg_quality[0], ranges.jpeg_quality[1] + 1)),
                            noise_seed=(int(seed), int(index), _STREAM_NOISE))
+    # camera targets: a stream of their own, so the draws above stay as they were
+    cam = np.random.default_rng([seed, index, _STREAM_DRAW, 2])
+    sat, blur = float(cam.uniform(*ranges.saturation)), float(cam.uniform(*ranges.optics_blur_px))
+    target = None
+    if ranges.frame_luminance is not None:
+        lo, hi = ranges.frame_luminance
+        target = math.exp(cam.uniform(math.log(lo), math.log(hi)))
+    effects = replace(effects, saturation=sat, blur_px=blur, target_luminance=target)
     return FrameRandomization(index, render, look, effects)
 
 
@@ -248,6 +316,24 @@ def decode_jpeg(data: bytes) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(data)).convert("RGB"))
 
 
+def auto_exposure(linear: np.ndarray, target: float) -> float:
+    """The scale ``k`` for which the frame's mean *displayed* linear luminance, after the tone
+    curve ``1 - exp(-k L)`` (:func:`~roadtwin_core.render.tonemap.to_srgb8`), equals ``target``
+    (what ``bench/camera_stats.py`` measures on real frames: sRGB decoded to linear). Bisection
+    in log k on every 4th pixel of every 4th row."""
+    if not 0.0 < target < 1.0:
+        raise RoadtwinError(f"auto-exposure target must be in (0, 1), got {target}")
+    c = np.maximum(np.asarray(linear, np.float64)[::4, ::4].reshape(-1, 3), 0.0)   # per channel, as displayed
+    if not c.size or c.max() <= 0:
+        return 1.0
+    w = np.asarray(_LUMA)
+    lo, hi = math.log(1e-4), math.log(1e4)
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if float((-np.expm1(-math.exp(mid) * c) @ w).mean()) < target else (lo, mid)
+    return math.exp(0.5 * (lo + hi))
+
+
 def apply_sensor(rgb: np.ndarray, effects: ImageEffects, camera: Camera | None = None,
                  depth: np.ndarray | None = None) -> tuple[np.ndarray, bytes]:
     """Rendered linear RGB (H, W, 3) -> what the camera records: (8-bit sRGB as decoded from the
@@ -258,10 +344,19 @@ def apply_sensor(rgb: np.ndarray, effects: ImageEffects, camera: Camera | None =
         raise RoadtwinError(f"sensor model: expected an (H, W, 3) linear RGB image, got shape {x.shape}")
     if camera is not None and depth is not None and effects.travel_m > 0:
         x = motion_blur(x, forward_flow(camera, depth, effects.travel_m))
+    if effects.blur_px > 0:
+        import cv2
+
+        x = cv2.GaussianBlur(np.ascontiguousarray(x), (0, 0), float(effects.blur_px), borderType=cv2.BORDER_REFLECT)
     if camera is not None and effects.vignetting > 0:
         x = x * vignetting(camera, effects.vignetting)[..., None].astype(np.float32)
+    if effects.target_luminance is not None:     # auto-exposure: the frame's mean luminance hits the target
+        x = x * np.float32(auto_exposure(x, effects.target_luminance))
     x = x * np.float32(effects.exposure)
     x = sensor_noise(x, effects.gain, effects.read_noise, np.random.default_rng(list(effects.noise_seed)))
     x = x * np.asarray(effects.wb_gains, dtype=np.float32)
+    if effects.saturation != 1.0:
+        y = (x @ np.asarray(_LUMA, np.float32))[..., None]
+        x = y + np.float32(effects.saturation) * (x - y)
     data = encode_jpeg(to_srgb8(x), effects.jpeg_quality)
     return decode_jpeg(data), data

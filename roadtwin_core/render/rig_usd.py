@@ -27,7 +27,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
-from .cameras import RIG_PRESETS, Camera, Intrinsics, RigPreset, look_from
+from .cameras import RIG_PRESETS, Camera, Intrinsics, RigPreset, lane_keep_out, look_from
 from .scene import GroundSampler, build_render_mesh, stage_lanes
 from .view_sampler import chain_lanes, road_attitude
 
@@ -69,8 +69,9 @@ def lens_tenths(preset: RigPreset, meters_per_unit: float = 1.0) -> dict[str, fl
 
 
 def default_pose(stage_path: str | Path, preset: RigPreset, at_s: float = 20.0) -> np.ndarray:
-    """A pose for the rig on the stage's first driving lane (lanes chained), ``at_s`` m along it,
-    the rig's height above the road under the wheels, its pitch, looking along the lane."""
+    """A pose for the rig on the stage's first driving lane (lanes chained), ``at_s`` m along it
+    (or further on, clear of a vehicle standing in the lane), the rig's height above the road
+    under the wheels, its pitch, looking along the lane."""
     from ..usd.town_reader import load_town   # pxr stays out of render's import (GPU machines have no USD)
 
     lanes = chain_lanes(stage_lanes(stage_path))
@@ -78,7 +79,11 @@ def default_pose(stage_path: str | Path, preset: RigPreset, at_s: float = 20.0) 
         raise RoadtwinError(f"{stage_path}: no driving lane centrelines to place the {preset.name} rig on")
     lane = lanes[0]
     s = float(min(max(at_s, 2.0), max(lane.length - 2.0, 0.0)))
-    ground = GroundSampler(build_render_mesh(load_town(stage_path)))
+    town = load_town(stage_path)
+    keep_out = lane_keep_out(town)
+    while not keep_out.clear(lane.at(np.array([s]))[0]) and s + 1.0 <= lane.length - 2.0:
+        s += 1.0
+    ground = GroundSampler(build_render_mesh(town))
     heading = float(lane.heading(np.array([s]), window=2.0)[0])
     xy = lane.at(np.array([s]))[0]
     z, pitch, roll = road_attitude(ground, xy, heading)

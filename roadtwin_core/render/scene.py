@@ -15,8 +15,13 @@ image, so a renderer samples every material the same way. A mesh with no bound m
 
 Class map (stable across towns with the same plugins): ``background`` (no town geometry: sky
 and whatever lies off the road model), the standard road kinds, ``lane_marking``, then every
-defect type (sorted), then any other road kind the town uses (sorted). Semantic annotations are
-uint8 class ids; 255 is the ignore index (geometry beyond the label range).
+defect type (sorted), then any other road kind the town uses (sorted), then the labels of the
+town's props (``layers/props.usda``: vegetation, pole, sign, vehicle, terrain ...; sorted, only
+those it has, so a town without props keeps every id). Semantic annotations are uint8 class ids;
+255 is the ignore index (geometry beyond the label range).
+
+Props are drawn like any surface (they occlude defects and cast shadows), with instance id 0; the
+:class:`GroundSampler` that puts cameras on the road leaves them out.
 """
 from __future__ import annotations
 
@@ -29,6 +34,7 @@ import numpy as np
 
 from ..errors import RoadtwinError
 from ..geometry import MeshHeights
+from ..town.prop_shapes import PROP_LABELS
 from .cameras import Lane
 
 BASE_CLASSES = ("background", "driving", "junction", "sidewalk", "shoulder", "lane_marking")
@@ -37,14 +43,15 @@ IGNORE_INDEX = 255
 WRAP_MODES = ("repeat", "clamp", "mirror")
 
 
-def class_names(defect_types: Iterable[str] = (), road_kinds: Iterable[str] = ()) -> list[str]:
+def class_names(defect_types: Iterable[str] = (), road_kinds: Iterable[str] = (),
+                prop_labels: Iterable[str] = ()) -> list[str]:
+    """Base classes, defect types (sorted), other road kinds (sorted), then the props' labels
+    (sorted; only those the town has, so a town without props keeps its ids)."""
     names = list(BASE_CLASSES)
-    for t in sorted(set(defect_types)):
-        if t not in names:
-            names.append(t)
-    for k in sorted(set(road_kinds)):
-        if k not in names:
-            names.append(k)
+    for group in (defect_types, road_kinds, prop_labels):
+        for t in sorted(set(group)):
+            if t not in names:
+                names.append(t)
     if len(names) > IGNORE_INDEX:
         raise RoadtwinError(f"{len(names)} semantic classes do not fit uint8 annotations (255 is the ignore index)")
     return names
@@ -200,7 +207,8 @@ def build_render_mesh(town, defect_types: Iterable[str] = ()) -> RenderMesh:
     source = getattr(town, "source", "")
     kinds = [m.kind for m in town.roads]
     dtypes = sorted(set(defect_types) | {d.defect_type for d in town.defects})
-    classes = class_names(dtypes, kinds)
+    props = list(getattr(town, "props", ()))
+    classes = class_names(dtypes, kinds, [m.kind for m in props])
     cid = {n: i for i, n in enumerate(classes)}
     verts, faces, fclass, finst, fmat, fuv = [], [], [], [], [], []
     materials: list[RenderMaterial] = [DEFAULT_MATERIAL]
@@ -239,6 +247,9 @@ def build_render_mesh(town, defect_types: Iterable[str] = ()) -> RenderMesh:
             add(piece, cid[d.defect_type], k)
     for m in getattr(town, "markings", ()):
         add(m, cid[MARKING_CLASS], 0)
+    # props last: they occlude and shadow the road like any surface; instance 0 (not a defect)
+    for m in props:
+        add(m, cid[m.kind], 0)
     if not faces:
         raise RoadtwinError(f"{source or 'town'}: no road or defect meshes to render")
     return RenderMesh(np.concatenate(verts), np.concatenate(faces), np.concatenate(fclass), np.concatenate(finst),
@@ -246,12 +257,21 @@ def build_render_mesh(town, defect_types: Iterable[str] = ()) -> RenderMesh:
                       [c for c in classes if c in dtypes], source)
 
 
+PROP_CLASSES = (*PROP_LABELS, "prop")   # the props' labels; "prop": an instancer's unlabelled prototype
+
+
 class GroundSampler(MeshHeights):
     """Height of the road under XY points, for placing cameras a fixed height above it
-    (:class:`~roadtwin_core.geometry.MeshHeights` of a render mesh on a 2 m grid)."""
+    (:class:`~roadtwin_core.geometry.MeshHeights` of a render mesh on a 2 m grid). Props (a
+    parked car, a tree's crown over the lane) are not the road: their faces are left out."""
 
     def __init__(self, mesh: RenderMesh, cell_m: float = 2.0):
-        super().__init__(mesh.vertices, mesh.faces, cell_m)
+        faces = mesh.faces
+        classes = getattr(mesh, "classes", None)     # apps/compose/preview.py passes bare vertices and faces
+        if classes is not None and getattr(mesh, "face_class", None) is not None:
+            is_prop = np.array([c in PROP_CLASSES for c in classes], dtype=bool)
+            faces = faces[~is_prop[mesh.face_class]]
+        super().__init__(mesh.vertices, faces, cell_m)
 
 
 def stage_lanes(stage_path: str | Path, kinds: Sequence[str] = ("driving",)) -> list[Lane]:

@@ -20,7 +20,9 @@ Pieces:
 A defect is *in view* when, in plan, it lies ``near..far`` m ahead along the camera's heading
 and within half the horizontal field of view of it (:func:`in_view`). The camera sits on the
 vehicle: its height is above the road under the wheels and its pitch and roll follow the road's
-grade and crossfall (a car on a 2 % crown leans 1.1 degrees), plus the rig's jitter.
+grade and crossfall (a car on a 2 % crown leans 1.1 degrees), plus the rig's jitter. A pose
+on or just behind a vehicle standing in the lane (a town's props placed ``lane``:
+:func:`~roadtwin_core.render.cameras.lane_keep_out`) is redrawn.
 """
 from __future__ import annotations
 
@@ -31,7 +33,7 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
-from .cameras import Camera, GroundFn, Intrinsics, Lane, look_from, vehicle_height
+from .cameras import NO_KEEP_OUT, Camera, GroundFn, Intrinsics, KeepOut, Lane, lane_keep_out, look_from, vehicle_height
 from .scene import stage_lanes
 
 TARGET_TYPES = ("pothole", "crack")
@@ -278,13 +280,14 @@ def _is_targeted(i: int, share: float) -> bool:
 def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn, n: int, *, rig: ViewRig = ViewRig(),
                  share: float = 0.7, seed: int = 0, jitter: Jitter = Jitter(), near_m: float = 5.0, far_m: float = 25.0,
                  target_types: Sequence[str] = TARGET_TYPES, max_lateral_m: float = 8.0, background: str = "uniform",
-                 start: int = 0, max_tries: int = 60) -> list[View]:
+                 start: int = 0, max_tries: int = 60, keep_out: KeepOut = NO_KEEP_OUT) -> list[View]:
     """Frames ``start .. start + n - 1``: a ``share`` of them aimed at a random pothole or crack
     (``target_types``) placed ``near..far`` m ahead inside the field of view, the rest uniform
     along the lanes (``background="uniform"``; ``"clear"`` redraws them until no target-type
     defect is in view, falling back to the last draw after ``max_tries``). Targets are defects
     within ``max_lateral_m`` of a lane centreline (own lane, the opposing one, the shoulders);
-    each is seen from every lane it lies near, in that lane's travel direction."""
+    each is seen from every lane it lies near, in that lane's travel direction. No camera stands
+    inside ``keep_out`` (vehicles stopped in the lanes)."""
     _check_view_options(rig, jitter, n, share, near_m, far_m, background, seed)
     lanes = [l for l in lanes if l.length > 2 * WHEELBASE_HALF_M]
     if not lanes:
@@ -294,7 +297,7 @@ def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn
     if share > 0 and n > 0 and not len(targets.defect):
         raise RoadtwinError(f"no {' or '.join(target_types)} lies within {max_lateral_m} m of a lane: "
                             f"cannot aim {share:.0%} of the views at defects")
-    drawer = _ViewDrawer(lanes, targets, ground, rig, jitter, near_m, far_m, background, max_tries)
+    drawer = _ViewDrawer(lanes, targets, ground, rig, jitter, near_m, far_m, background, max_tries, keep_out)
     views = []
     for i in range(start, start + n):
         rng = np.random.default_rng([seed, i])
@@ -369,6 +372,7 @@ class _ViewDrawer:
     far_m: float
     background: str
     max_tries: int
+    keep_out: KeepOut = NO_KEEP_OUT
 
     def __post_init__(self):
         self.lengths = np.array([l.length for l in self.lanes])
@@ -398,17 +402,21 @@ class _ViewDrawer:
             if aimed or self.background == "uniform" or not seen.any():
                 break
         if chosen is None:
-            what = "aim a view at a defect" if aimed else "place a view on a lane (the road is missing under them)"
+            what = ("aim a view at a defect" if aimed else
+                    "place a view on a lane (the road is missing under them, or vehicles stand there)")
             raise RoadtwinError(f"view {i}: could not {what} in {self.max_tries} tries")
         return chosen
 
     def camera(self, rng, lane_i: int, s: float) -> tuple[np.ndarray, dict] | None:
-        """The rig on the road at ``s`` along the lane, jittered; None where there is no road."""
+        """The rig on the road at ``s`` along the lane, jittered; None where there is no road or a
+        vehicle stands (``keep_out``)."""
         jitter, rig = self.jitter, self.rig
         lane = self.lanes[lane_i]
         heading = float(lane.heading(np.array([s]), window=2.0)[0])
         lat = rng.uniform(-jitter.lateral_m, jitter.lateral_m)
         xy = lane.at(np.array([s]))[0] + lat * np.array([-math.sin(heading), math.cos(heading)])
+        if not self.keep_out.clear(xy):
+            return None
         z, road_pitch, road_roll = road_attitude(self.ground, xy, heading)
         if not math.isfinite(z):
             return None
@@ -430,6 +438,7 @@ def stage_views(stage_path, town, ground: GroundFn, n: int, **options) -> tuple[
     lanes = chain_lanes(stage_lanes(stage_path))
     if not lanes:
         raise RoadtwinError(f"{stage_path}: no driving lane centrelines (roadtwin:segment:centerline) to place views on")
+    options.setdefault("keep_out", lane_keep_out(town))
     return sample_views(lanes, defect_targets(town), ground, n, **options), lanes
 
 

@@ -3,9 +3,12 @@
 Defects go on segments of the allowed kinds (driving lanes by default), uniformly by area; each
 footprint must stay ``edge_margin_m`` inside the allowed road area and ``spacing_m`` away from
 every other defect. Crossing a border *between* allowed segments is fine: the merger clips
-the defect into both. Ruts follow the lane's travel direction; other types get a random yaw.
+the defect into both. Ruts and bumps (and any type that says ``along_travel``, e.g. tyre marks)
+follow the lane's travel direction; other types get a random yaw.
 """
 from __future__ import annotations
+
+from typing import Collection
 
 import numpy as np
 import shapely
@@ -49,8 +52,10 @@ def _covers_area(segment_poly: Polygon, footprint: Polygon) -> bool:
 
 
 def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectModel]], rules: ComposeRules,
-                  rng: np.random.Generator, owner: str, fixed: list[Placement] = ()) -> list[Placement]:
-    """Fixed placements first (checked, never moved), then ``rules.defect_count`` random ones."""
+                  rng: np.random.Generator, owner: str, fixed: list[Placement] = (),
+                  along_travel: Collection[str] = ALONG_TRAVEL) -> list[Placement]:
+    """Fixed placements first (checked, never moved), then ``rules.defect_count`` random ones.
+    ``along_travel``: types yawed with the lane's direction (the rest get a uniform yaw)."""
     if rules.defect_count == 0 and not fixed:
         return []
     allowed = [s for s in segments if s.kind in rules.kinds]
@@ -74,7 +79,7 @@ def place_defects(segments: list[RoadSegment], library: dict[str, list[DefectMod
             # per-type counts show the resulting mix.
             if attempt >= MAX_TRIES // 2:
                 t = draw_type()
-            p = _draw_placement(f"D{i:05d}", t, library, road, rules, rng, lines)
+            p = _draw_placement(f"D{i:05d}", t, library, road, rules, rng, lines, along_travel)
             if p is not None and not road.try_add(p, quick=True):
                 break
         else:
@@ -166,14 +171,15 @@ def _type_drawer(library: dict[str, list[DefectModel]], rules: ComposeRules, rng
 
 
 def _draw_placement(instance_id: str, t: str, library: dict[str, list[DefectModel]], road: _Road,
-                    rules: ComposeRules, rng: np.random.Generator, lines: dict) -> Placement | None:
+                    rules: ComposeRules, rng: np.random.Generator, lines: dict,
+                    along_travel: Collection[str] = ALONG_TRAVEL) -> Placement | None:
     """One random try: a model of type ``t`` at a uniform point of the road, with its yaw and
     scale; None when the wheel-path weighting rejects the point."""
     model = library[t][rng.integers(len(library[t]))]
     seg, xy = road.sample_point(rng)
     if rng.random() > _wheel_path_acceptance(seg, xy, rules.wheel_path_weight, lines):
         return None
-    if t in ALONG_TRAVEL:
+    if t in along_travel:
         d = seg.travel_direction(xy)[0]
         yaw = float(np.arctan2(d[1], d[0]) + rng.normal(0.0, np.radians(3.0)))
     else:

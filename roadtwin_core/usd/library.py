@@ -33,7 +33,18 @@ def library_asset_files(folder: Path) -> list[Path]:
     return [p for p in sorted(folder.iterdir()) if p.is_file() and is_asset_file(p)]
 
 
-def write_defect_asset(model: DefectModel, path: str | Path) -> Path:
+DEFECT_CLASS = "road_defect"
+
+
+def defect_labels(defect_type: str, semantic_classes: dict[str, str] | None = None) -> list[str]:
+    """UsdSemantics "class" labels of a defect instance or asset: ``["road_defect", <type>]``;
+    a type whose class is another (a look-alike: ``road_lookalike``) is road first:
+    ``["road", <class>, <type>]``, so a consumer that reads the first label counts it as road."""
+    cls = (semantic_classes or {}).get(defect_type, DEFECT_CLASS)
+    return [DEFECT_CLASS, defect_type] if cls == DEFECT_CLASS else ["road", cls, defect_type]
+
+
+def write_defect_asset(model: DefectModel, path: str | Path, semantic_class: str = DEFECT_CLASS) -> Path:
     path = Path(path)
     name = model.name
     geom_path = path.with_name(f"{path.stem}{GEOM_SUFFIX}")
@@ -53,7 +64,7 @@ def write_defect_asset(model: DefectModel, path: str | Path) -> Path:
     asset = UsdGeom.Xform.Define(stage, f"/{name}")
     p = asset.GetPrim()
     set_kind(p, "component")
-    apply_labels(p, ["road_defect", model.defect_type])
+    apply_labels(p, defect_labels(model.defect_type, {model.defect_type: semantic_class}))
     set_attrs(p, "roadtwin:defect", {k: v for k, v in model.attributes().items() if k != "source"})
     set_attrs(p, "roadtwin", {"source": model.source, "params": json.dumps(model.params, sort_keys=True)})
     lo, hi = model.vertices.min(axis=0), model.vertices.max(axis=0)

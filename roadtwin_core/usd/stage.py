@@ -16,6 +16,7 @@ from ..looks.catalog import ST_TILE_M
 from .checks import FaceBudget, check_points
 
 LABEL_TAXONOMY = "class"
+GEOMETRY_SUFFIX = ".geom.usdc"  # layers/<name>.usda sublayers layers/<name>.geom.usdc (its mesh arrays, crate)
 
 
 def new_stage(path: Path, default_prim: str, doc: str = "") -> Usd.Stage:

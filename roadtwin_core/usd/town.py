@@ -1,7 +1,9 @@
 """Write a composed town: root ``town.usda`` sublayering one layer per concern.
 
-Strongest first: looks, semantics, physics, markings, defects, roads, then the untouched input
-layout (copied into ``layout/``). Roads *override* the layout's planar segment meshes with the merged, elevated
+Strongest first: looks, semantics, physics, props, markings, defects, roads, then the untouched
+input layout (copied into ``layout/``). ``props`` (the roadside world: PointInstancers of
+procedural trees, poles, signs, vehicles ... and a terrain mesh; :mod:`.props`) is there when
+the town has props. Roads *override* the layout's planar segment meshes with the merged, elevated
 road surface, so muting ``roads.usda`` shows the input again. Defect instances carry their baked
 geometry (each one drapes over a different piece of road, so it cannot be shared). The physics
 layer applies static triangle-mesh collision (``CollisionAPI`` + ``MeshCollisionAPI``,
@@ -33,14 +35,16 @@ from pxr import Sdf, UsdGeom, UsdPhysics
 from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_material, kind_material, marking_material
 from ..town.markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
+from ..town.props import Props
+from .library import defect_labels
 from .looks import write_looks
-from .stage import (author_api_over, author_attrs, author_labels, author_mesh_geometry, author_uniform, define_prim, lane_st,
-                    new_layer, planar_st, safe_prim_name)
+from .props import write_props
+from .stage import (GEOMETRY_SUFFIX, author_api_over, author_attrs, author_labels, author_mesh_geometry, author_uniform,
+                    define_prim, lane_st, new_layer, planar_st, safe_prim_name)
 
-LAYERS = ("looks", "semantics", "physics", "markings", "defects", "roads")
+LAYERS = ("looks", "semantics", "physics", "props", "markings", "defects", "roads")  # props: when the town has them
 VARIANT_KINDS = ("driving", "junction")  # the surfaces the root's roadMaterial variant set switches
 DEFAULT_ROAD_MATERIAL = "asphalt"
-GEOMETRY_SUFFIX = ".geom.usdc"  # layers/<name>.usda sublayers layers/<name>.geom.usdc
 MARKING_MESHES = "MarkingMeshes"  # group of the draped paint meshes (the layout's curves are in "Markings")
 
 
@@ -55,6 +59,8 @@ class TownParts:
     compose_info: dict
     markings: list[MarkingMesh] = field(default_factory=list)
     materials: dict[str, MaterialSpec] = field(default_factory=dict)  # name -> spec (textures/ beside town.usda)
+    semantic_classes: dict[str, str] = field(default_factory=dict)    # defect type -> class (default road_defect)
+    props: Props | None = None            # the roadside world (layers/props.usda); None: no props layer
 
 
 def segment_st(seg: RoadSegment, vertices: np.ndarray) -> np.ndarray:
@@ -174,12 +180,15 @@ def write_town(outdir: Path, parts: TownParts, on_looks: Callable[[], None] | No
     _write_roads(outdir, doc, lay, split)
     _write_defects(outdir, doc, parts, pieces)
     _write_markings(outdir, lay.name, doc, parts.markings, marking_names)
+    if parts.props is not None:
+        write_props(outdir, lay.name, doc, parts.props)
     _write_physics(outdir, doc, parts, pieces)
     _write_semantics(outdir, doc, parts, marking_names)
 
     town_path = outdir / "town.usda"
     town = new_layer(town_path, lay.name, doc)  # a layer, not a stage: a stage would compose the whole town here
-    town.subLayerPaths = [f"./layers/{n}.usda" for n in LAYERS] + [f"./{parts.layout_file}"]
+    layers = [n for n in LAYERS if n != "props" or parts.props is not None]
+    town.subLayerPaths = [f"./layers/{n}.usda" for n in layers] + [f"./{parts.layout_file}"]
     top = Sdf.CreatePrimInLayer(town, Sdf.Path(f"/{lay.name}"))
     top.kind = "assembly"
     author_attrs(top, "roadtwin:compose", parts.compose_info)
@@ -274,7 +283,8 @@ def _write_semantics(outdir: Path, doc: str, parts: TownParts, marking_names: li
     root = f"/{lay.name}"
     sem = _readable_layer(outdir, "semantics", lay.name, doc + ": semantic labels")
     labels = [(seg.prim_path, ["road", seg.kind]) for seg in lay.segments]
-    labels += [(f"{root}/Defects/{p.instance_id}", ["road_defect", p.model.defect_type]) for p in parts.placements]
+    labels += [(f"{root}/Defects/{p.instance_id}", defect_labels(p.model.defect_type, parts.semantic_classes))
+               for p in parts.placements]
     labels += [(f"{root}/{MARKING_MESHES}/{name}", ["lane_marking", m.marking_type])
                for name, m in zip(marking_names, parts.markings)]
     with Sdf.ChangeBlock():

@@ -8,6 +8,12 @@ prim carrying ``roadtwin:marking:type``, i.e. ``/<root>/Markings/<id>``). With `
 each of them also gets its texture coordinates (``TownMesh.st``, per face corner) and its bound
 ``UsdPreviewSurface`` material (``TownMesh.material``, see :mod:`.looks_reader`); physics and
 planning leave ``looks`` off, so a broken texture path never stops them.
+
+Props (``layers/props.usda``) are read too: each ``UsdGeom.PointInstancer`` is expanded into one
+world-space mesh per prototype part (``TownScene.props``, kind = the prototype's class label) and
+its instances' positions are kept (``TownScene.instances``: the view sampler keeps cameras off
+the vehicles standing in lanes); a Mesh with a prop label (:data:`PROP_LABELS`), the terrain, is a
+prop as it is. Props are not colliders.
 """
 from __future__ import annotations
 
@@ -15,9 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from pxr import Usd, UsdGeom, UsdPhysics
+from pxr import Usd, UsdGeom, UsdPhysics, UsdSemantics
 
 from ..errors import RoadtwinError
+from ..town.prop_shapes import PROP_LABELS
 from .looks_reader import TownMaterial, bound_material, corner_st
 from .checks import FaceBudget, open_stage
 from .stage import read_mesh
@@ -45,6 +52,17 @@ class TownDefect:
 
 
 @dataclass
+class TownInstances:
+    """The instances of one ``UsdGeom.PointInstancer`` (props): where they stand and what they are."""
+
+    path: str
+    place: str                # roadtwin:prop:place of the instancer (roadside, chain, lane, far; "" unknown)
+    labels: np.ndarray        # (N,) class label of each instance's prototype
+    positions: np.ndarray     # (N,3) world position of each instance's origin
+    radii: np.ndarray         # (N,) plan radius about the origin that holds the instance (scaled prototype)
+
+
+@dataclass
 class TownScene:
     name: str
     source: str
@@ -52,6 +70,9 @@ class TownScene:
     defects: list[TownDefect] = field(default_factory=list)
     colliders: list[TownMesh] = field(default_factory=list)
     markings: list[TownMesh] = field(default_factory=list)   # kind = roadtwin:marking:type
+    props: list[TownMesh] = field(default_factory=list)      # kind = semantic label (vegetation, pole ...):
+                                                             # PointInstancers expanded, plus labelled prop meshes
+    instances: list[TownInstances] = field(default_factory=list)   # per PointInstancer: its instances
     metadata: dict = field(default_factory=dict)
 
     def collision_mesh(self) -> tuple[np.ndarray, np.ndarray]:
@@ -94,7 +115,15 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
     defects: dict[str, TownDefect] = {}
     marking_types: dict[str, str] = {}
     materials: dict = {}
-    for prim in Usd.PrimRange(root):
+    it = iter(Usd.PrimRange(root))
+    for prim in it:
+        if prim.IsA(UsdGeom.PointInstancer):
+            it.PruneChildren()   # prototypes are drawn through their instancer only
+            if UsdGeom.Imageable(prim).ComputeVisibility() != UsdGeom.Tokens.invisible:
+                meshes, instances = expand_instancer(prim, budget, looks, materials)
+                scene.props += meshes
+                scene.instances.append(instances)
+            continue
         if prim.HasAttribute("roadtwin:defect:type") and prim.IsA(UsdGeom.Xform):
             attrs = {a.GetName().split(":")[-1]: a.Get() for a in prim.GetAttributes()
                      if a.GetName().startswith("roadtwin:defect:")}
@@ -120,8 +149,12 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
         else:
             kind = _marking_type(prim, marking_types)
             if kind is None:
-                continue
-            target = scene.markings
+                kind = prop_label(prim)
+                if kind is None:
+                    continue
+                target = scene.props
+            else:
+                target = scene.markings
         if UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.invisible:
             continue
         if v is None:
@@ -134,6 +167,72 @@ def load_town(path: str | Path, looks: bool = False, variants: dict[str, str] | 
         target.append(tm)
     scene.defects = list(defects.values())
     return scene
+
+
+def prop_label(prim) -> str | None:
+    """The first ``class`` label of the prim or its nearest labelled ancestor, when it is a prop
+    label (:data:`PROP_LABELS`); None otherwise (roads, defects and markings are read by kind)."""
+    p = prim
+    while p and not p.IsPseudoRoot():
+        if p.HasAPI(UsdSemantics.LabelsAPI, "class"):
+            labels = UsdSemantics.LabelsAPI(p, "class").GetLabelsAttr().Get() or []
+            return str(labels[0]) if len(labels) and str(labels[0]) in PROP_LABELS else None
+        p = p.GetParent()
+    return None
+
+
+def expand_instancer(prim, budget: FaceBudget, looks: bool, materials: dict) -> tuple[list[TownMesh], TownInstances]:
+    """A PointInstancer as world-space meshes: one TownMesh per prototype part, holding every
+    instance of it (kind = the prototype's label, ``prop`` when it has none), and its instances'
+    positions and labels. The expanded triangles count against the face budget (a prototype
+    stored once is drawn once per instance)."""
+    inst = UsdGeom.PointInstancer(prim)
+    idx = np.asarray(inst.GetProtoIndicesAttr().Get() or [], dtype=np.int64)
+    xf = inst.ComputeInstanceTransformsAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default())
+    mats = np.asarray(xf, dtype=np.float64).reshape(-1, 4, 4)
+    if len(mats) != len(idx):
+        raise RoadtwinError(f"{prim.GetPath()}: PointInstancer transforms do not match its protoIndices "
+                            f"({len(mats)} transforms, {len(idx)} indices)")
+    if len(mats):
+        mats = mats @ np.asarray(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+        if not np.isfinite(mats).all():
+            raise RoadtwinError(f"{prim.GetPath()}: PointInstancer transforms have NaN or infinite entries")
+    place = prim.GetAttribute("roadtwin:prop:place")
+    labels = np.full(len(idx), "prop", dtype=object)
+    reach = np.zeros(len(idx))      # each instance's prototype: its farthest plan point from the origin
+    out = []
+    for k, target in enumerate(inst.GetPrototypesRel().GetTargets()):
+        proto = prim.GetStage().GetPrimAtPath(target)
+        mine = mats[idx == k]
+        if not proto or not len(mine):
+            continue
+        label = prop_label(proto) or "prop"
+        labels[idx == k] = label
+        for part in Usd.PrimRange(proto):
+            if not part.IsA(UsdGeom.Mesh):
+                continue
+            mesh = UsdGeom.Mesh(part)
+            v, f = read_mesh(mesh, world=False, budget=budget)
+            budget.take(len(f) * (len(mine) - 1), f"{prim.GetPath()} ({len(mine)} instances of {part.GetPath()})")
+            if part != proto:   # the part's transform relative to its prototype root
+                rel = np.asarray(UsdGeom.Xformable(part).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+                base = np.asarray(UsdGeom.Xformable(proto).ComputeLocalToWorldTransform(Usd.TimeCode.Default()))
+                m = rel @ np.linalg.inv(base)
+                v = v @ m[:3, :3] + m[3, :3]
+            if len(v):
+                reach[idx == k] = np.maximum(reach[idx == k], np.hypot(v[:, 0], v[:, 1]).max())
+            n = len(mine)
+            world = np.einsum("vj,njk->nvk", v, mine[:, :3, :3]) + mine[:, None, 3, :3]
+            faces = (f[None] + (np.arange(n) * len(v))[:, None, None]).reshape(-1, 3)
+            tm = TownMesh(f"{part.GetPath()}", label, world.reshape(-1, 3), faces)
+            if looks:
+                tm.material, st = _looks(part, mesh, len(f), materials)
+                tm.st = None if st is None else np.tile(st, (n, 1, 1))
+            out.append(tm)
+    positions = mats[:, 3, :3] if len(mats) else np.zeros((0, 3))
+    scale = np.linalg.norm(mats[:, :2, :3], axis=2).max(axis=1) if len(mats) else np.zeros(0)
+    return out, TownInstances(str(prim.GetPath()), str(place.Get()) if place and place.HasValue() else "",
+                              labels.astype(str), positions, reach * scale)
 
 
 def _marking_type(prim, marking_types: dict[str, str]) -> str | None:

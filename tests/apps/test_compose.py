@@ -25,7 +25,9 @@ TOWN = REPO / "stages" / "town.usda"
 N_DEFECTS = 12
 SEED = 7
 # Sublayers of town.usda, strongest first (docs/architecture.md#layers-of-a-town-stage).
-LAYER_ORDER = ["looks", "semantics", "physics", "markings", "defects", "roads", "layout"]
+LAYER_ORDER = ["looks", "semantics", "physics", "props", "markings", "defects", "roads", "layout"]
+# The roadside world's class labels (layers/props.usda, on by default).
+PROP_LABELS = {"vegetation", "pole", "sign", "vehicle", "terrain", "guardrail", "fence"}
 DEPRESSION_TYPES = {"pothole", "depression", "rut", "crack"}
 ROOT = "/Town"
 
@@ -136,7 +138,8 @@ def test_every_layer_has_stage_metadata(out):
     assert {p.stem for p in (out / "layers").glob("*.usda")} == set(LAYER_ORDER[:-1])
     # Heavy arrays live in crate files beside the layers that sublayer them
     # (docs/architecture.md#geometry-in-crate-sublayers).
-    assert {p.name for p in (out / "layers").glob("*.usdc")} == {f"{n}.geom.usdc" for n in ("roads", "defects", "markings")}
+    assert {p.name for p in (out / "layers").glob("*.usdc")} == {f"{n}.geom.usdc"
+                                                                 for n in ("roads", "defects", "markings", "props")}
     assert len(list((out / "library").glob("*.usda"))) > 0
     for path in files:
         layer = Sdf.Layer.OpenAsAnonymous(str(path))  # a fresh read of the file, no registry cache
@@ -172,6 +175,9 @@ def test_renderable_meshes_have_road_labels(stage):
         if not prim.IsA(UsdGeom.Mesh) or UsdGeom.Imageable(prim).ComputePurpose() == UsdGeom.Tokens.guide:
             continue
         labels = set(query.ComputeUniqueInheritedLabels(prim))
+        if str(prim.GetPath()).startswith(f"{ROOT}/Props/"):     # the roadside world: its own labels
+            assert labels & PROP_LABELS, f"{prim.GetPath()}: labels {sorted(labels)}"
+            continue
         assert labels & {"road", "road_defect", "lane_marking"}, f"{prim.GetPath()}: labels {sorted(labels)}"
         n += 1
     assert n > N_DEFECTS
@@ -314,6 +320,27 @@ def test_muting_roads_restores_planar_layout(out, layout_meshes):
         assert np.array_equal(pts, lpts), name
         assert np.array_equal(tris, ltris), name
         assert (pts[:, 2] == 0).all(), name
+
+
+def test_props_are_instanced_and_muting_removes_exactly_them(out, stage):
+    """layers/props.usda: PointInstancers (each prototype stored once), a terrain mesh, labelled;
+    small beside the town (< 10 % of its USD bytes); no collider; muting it removes /Town/Props
+    and changes no other prim."""
+    summary = json.loads((out / "summary.json").read_text())
+    instancers = [p for p in Usd.PrimRange(stage.GetPrimAtPath(f"{ROOT}/Props")) if p.IsA(UsdGeom.PointInstancer)]
+    n = sum(len(UsdGeom.PointInstancer(p).GetProtoIndicesAttr().Get()) for p in instancers)
+    assert n == summary["props"]["instances"] == sum(summary["props"]["by_rule"].values()) > 300
+    meshes = [p for p in Usd.PrimRange(stage.GetPrimAtPath(f"{ROOT}/Props")) if p.IsA(UsdGeom.Mesh)]
+    assert len(meshes) < 80 and stage.GetPrimAtPath(f"{ROOT}/Props/Terrain").IsA(UsdGeom.Mesh)
+    assert not any(p.HasAPI(UsdPhysics.CollisionAPI) for p in meshes)
+    usd = [p for p in (out / "layers").glob("*.usd[ac]")] + [out / "town.usda"]
+    props_bytes = sum(p.stat().st_size for p in usd if p.name.startswith("props."))
+    assert props_bytes < 0.1 * sum(p.stat().st_size for p in usd)
+    before = {str(p.GetPath()) for p in stage.Traverse()}
+    s = Usd.Stage.Open(str(out / "town.usda"))
+    s.MuteLayer(Sdf.Layer.FindOrOpen(str(out / "layers" / "props.usda")).identifier)
+    after = {str(p.GetPath()) for p in s.Traverse()}
+    assert after == {p for p in before if not p.startswith(f"{ROOT}/Props")}
 
 
 # --------------------------------------------------------------------------- determinism

@@ -58,7 +58,9 @@ def _per_material(mesh):
 def test_preview_town_matches_the_written_stage(composed):
     res, town = composed
     assert town is not None and (res.outdir / "preview.png").exists()
-    ref = build_render_mesh(load_town(res.town, looks=True))
+    scene = load_town(res.town, looks=True)
+    scene.props = []                  # the preview draws the road, not the roadside world (layers/props.usda)
+    ref = build_render_mesh(scene)
     behind_all = np.array([ref.vertices[:, 0].min() - 10.0, ref.vertices[:, 1].mean()])  # facing +x: all ahead
     spot = type("Spot", (), {"xy": behind_all, "heading": 0.0})()
     town.looks_layer = res.outdir / "layers" / "looks.usda"   # compose wrote it in a folder since renamed

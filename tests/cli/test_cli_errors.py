@@ -88,6 +88,11 @@ def work(tmp_path_factory) -> Path:
     write_layout(d / "textspacing.usda", rules={"spacingM": (S, "wide")})
     write_layout(d / "unknownrule.usda", rules={"colour": (S, "red")})
     (d / "a_file").write_text("not a directory\n")
+    # Props rules (layers/props.usda): one that fits nothing, a file that is not TOML, an unknown prototype.
+    (d / "giant.toml").write_text('[[rule]]\nname = "giant_poles"\ngroup = "Poles"\nprototypes = {utility_pole = 1}\n'
+                                  'spacing_m = 100000\n')
+    (d / "badrules.toml").write_text("[[rule]\n")
+    (d / "palms.toml").write_text('[[rule]]\nname = "palms"\ngroup = "Palms"\nprototypes = {tree_palm = 1}\n')
     r = run_cli("compose", "good.usda", "-o", "OUT", "--no-preview", cwd=d)
     assert r.returncode == 0, r.stderr
     assert (d / "OUT" / "town.usda").is_file()
@@ -122,6 +127,12 @@ CASES = [
     ("unknown-merger", ["compose", "good.usda", "--merger", "nope"], ["merger", "'nope'", "cdt"]),
     ("unknown-surface-class", ["compose", "good.usda", "--surface", "iso8608:Q"], ["surface", "'Q'", "A..H"]),
     ("unknown-surface", ["compose", "good.usda", "--surface", "bumpy"], ["surface", "'bumpy'"]),
+    ("props-fit-nothing", ["compose", "good.usda", "--props", "giant.toml"],
+     [r"good\.usda", "props rule 'giant_poles' fits nothing", "spacing 100000 m is longer than every road outline"]),
+    ("props-missing", ["compose", "good.usda", "--props", "nosuch.toml"], [r"nosuch\.toml", "props rules file not found"]),
+    ("props-not-toml", ["compose", "good.usda", "--props", "badrules.toml"], [r"badrules\.toml", "not a TOML"]),
+    ("props-unknown-prototype", ["compose", "good.usda", "--props", "palms.toml"],
+     [r"palms\.toml", "'palms'", "unknown prototype 'tree_palm'"]),
 ]
 
 
@@ -147,7 +158,7 @@ def test_bad_input_keeps_earlier_output(work, args, patterns):
     assert sorted(p.name for p in work.iterdir()) == listing, "files were left beside the output"
 
 
-NO_OUTPUT = {"missing-file", "bow-tie", "nan-surface", "too-many-defects"}
+NO_OUTPUT = {"missing-file", "bow-tie", "nan-surface", "too-many-defects", "props-fit-nothing"}
 
 
 @pytest.mark.parametrize("args,patterns", [c[1:] for c in CASES if c[0] in NO_OUTPUT],

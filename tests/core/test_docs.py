@@ -147,6 +147,15 @@ def test_the_cheap_examples_run(pm, tmp_path):
     writer.finish()
     assert (tmp_path / "render" / files["instance_pixels"]).read_text() == '{"1": 2, "2": 1}'
 
+    sensor = pm.get("sensors", "ideal_imu")
+    imu = sensor.create("imu", 200.0, np.eye(4), sensor.Params())
+    state = SimpleNamespace(t=0.5, pose_at=lambda t: np.eye(4),
+                            imu_truth=lambda offset, t0, t1: (np.array([0.0, 0.0, 9.81]), np.array([0.0, 0.0, 0.1])))
+    sample = imu.sample(state, None)
+    np.testing.assert_allclose(sample["linear_acceleration"], [0.0, 0.0, 9.81])
+    np.testing.assert_allclose(sample["angular_velocity"], [0.0, 0.0, 0.1])
+    np.testing.assert_allclose(sample["orientation"], [0.0, 0.0, 0.0, 1.0])
+
 
 # ---- docs/architecture.md ---------------------------------------------------------------------
 

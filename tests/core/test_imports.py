@@ -42,9 +42,11 @@ PLUGINS = REPO / "plugins"
 #: one at the top could not be imported without it, so an import inside a function may always
 #: defer them. Import times after numpy (``python -X importtime``, 2-core machine, best of three):
 #: torch 1.0 s, open3d 0.6 s, ray 0.3 s, rerun 0.3 s, warp 0.2 s (and it starts CUDA), pyarrow.parquet
-#: 0.06 s, h5py 0.04 s, cv2 0.015 s, pybullet 0.001 s. :func:`test_optional_packages_are_the_extra`
-#: keeps this equal to the extra.
-LAZY_OPTIONAL = {"torch", "warp", "open3d", "ray", "cv2", "pybullet", "rerun", "h5py", "pyarrow", "bpy"}
+#: 0.06 s, h5py 0.04 s, cv2 0.015 s, pybullet 0.001 s; rosbags (drive's ROS 2 bag writer) and mcap
+#: (its reader, used by the tests only). :func:`test_optional_packages_are_the_extra` keeps this
+#: equal to the extra.
+LAZY_OPTIONAL = {"torch", "warp", "open3d", "ray", "cv2", "pybullet", "rerun", "h5py", "pyarrow", "rosbags", "mcap",
+                 "bpy"}
 #: Where the extra's distribution name is not the name imported.
 _IMPORT_NAME = {"warp-lang": "warp", "opencv-python-headless": "cv2", "rerun-sdk": "rerun"}
 

@@ -105,8 +105,10 @@ def stage(out) -> Usd.Stage:
 
 
 def rendered_meshes(stage: Usd.Stage) -> list[Usd.Prim]:
+    """The road, defect and marking meshes (the props, under /<root>/Props, have constant colours)."""
     return [p for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)
-            and UsdGeom.Imageable(p).ComputePurpose() not in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)]
+            and UsdGeom.Imageable(p).ComputePurpose() not in (UsdGeom.Tokens.guide, UsdGeom.Tokens.proxy)
+            and not str(p.GetPath()).startswith(f"{ROOT}/Props/")]
 
 
 def points_faces(prim: Usd.Prim) -> tuple[np.ndarray, np.ndarray]:

@@ -182,14 +182,19 @@ def make_standin_synthetic(root: Path, n: int = 4, size=(128, 80)) -> Path:
     return root
 
 
-def test_benchmark_one_step_smoke_on_real_frames(tmp_path, capsys):
+@pytest.mark.parametrize("encoder", ["scratch", pytest.param("efficientnet-lite0", marks=pytest.mark.slow)])
+def test_benchmark_one_step_smoke_on_real_frames(tmp_path, capsys, encoder):
+    """Both encoders through the whole bench (the default, EfficientNet-Lite0, ~1 min on 2 CPU
+    cores: slow; its network alone is tests/core/test_segnet.py)."""
     pytest.importorskip("torch")
+    if encoder != "scratch":
+        pytest.importorskip("efficientnet_lite_pytorch")
     bench = _bench()
     synth = make_standin_synthetic(tmp_path / "synth")
     out = tmp_path / "out"
     rc = bench.main(["run", "--real", str(TINY), "--synthetic", str(synth), "--device", "cpu", "--steps", "1",
                      "--pretrain-steps", "1", "--batch", "2", "--width", "4", "--size", "64x40", "--seeds", "0",
-                     "--fractions", "1", "0.5", "--out", str(out), "--bootstrap", "50"])
+                     "--fractions", "1", "0.5", "--out", str(out), "--bootstrap", "50", "--encoder", encoder])
     assert rc == 0
     res = json.loads((out / "results_seed0.json").read_text())
     assert set(res["runs"]) == {"zero-shot", "real@100%", "synth+real@100%", "real@50%", "synth+real@50%"}

@@ -22,6 +22,8 @@ from pxr import Ar, Gf, Sdf, Usd, UsdGeom, UsdSemantics, UsdShade, Vt
 
 from roadtwin_core import RoadtwinError, get_plugin_manager
 from roadtwin_core.apps.compose.run import compose
+from roadtwin_core.town.prop_shapes import PROP_LABELS
+from roadtwin_core.usd.town_reader import load_town
 
 ROOT = Path(__file__).resolve().parents[2]
 ROADTWIN = Path(sys.executable).with_name("roadtwin")
@@ -78,7 +80,8 @@ def cli(*args: str) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def town(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("export") / "town"
-    return compose(ROOT / "stages/town.usda", out, defects=6, seed=1, preview=False, surface="flat").town
+    # no props: the reference above reads textured road meshes (props: test_glb_draws_the_props_as_instanced)
+    return compose(ROOT / "stages/town.usda", out, defects=6, seed=1, preview=False, surface="flat", props="none").town
 
 
 @pytest.fixture(scope="module")
@@ -319,3 +322,25 @@ def test_world_space_purpose_visibility_instancer(tmp_path):
     assert (faces["class_id"][moved_faces] == int(classes["road_defect"])).all()
     # the winding follows the (proper) axis rotation: the quads face -y in Y-up USD, -z here
     assert (mesh.face_normals[:, 2] < -0.99).all()
+
+
+def test_glb_draws_the_props_as_instanced(tmp_path):
+    """A town with its roadside world (layers/props.usda, PointInstancers): the glb has one node
+    per instance part, with its class, and as many prop triangles as load_town draws."""
+    town = compose(ROOT / "stages/town.usda", tmp_path / "town", defects=2, seed=1, preview=False, surface="flat",
+                   executor="serial").town
+    out = tmp_path / "town.glb"
+    get_plugin_manager().get("exporters", "glb").export(town, out)
+    data = out.read_bytes()
+    (n,) = struct.unpack("<I", data[12:16])
+    gltf = json.loads(data[20:20 + n])
+    triangles = {}
+    for node in gltf["nodes"]:
+        if "mesh" in node and node["extras"]["class"] in PROP_LABELS:
+            (primitive,) = gltf["meshes"][node["mesh"]]["primitives"]
+            cls = node["extras"]["class"]
+            triangles[cls] = triangles.get(cls, 0) + gltf["accessors"][primitive["indices"]]["count"] // 3
+    want = {}
+    for m in load_town(town).props:
+        want[m.kind] = want.get(m.kind, 0) + len(m.faces)
+    assert triangles == want and {"vegetation", "vehicle", "pole", "terrain"} <= set(want)

@@ -18,11 +18,18 @@ from roadtwin_core.plugins import PluginManager
 pytest.importorskip("open3d")
 
 ROOT = Path(__file__).resolve().parents[2]
-try:
-    rl = importlib.import_module("roadtwin_lidar")
-except ImportError:  # editable install made before the plugin existed
-    sys.path.insert(0, str(ROOT / "plugins"))
-    rl = importlib.import_module("roadtwin_lidar")
+
+
+def _plugin(name: str):
+    try:
+        return importlib.import_module(name)
+    except ImportError:  # editable install made before the plugin existed
+        sys.path.insert(0, str(ROOT / "plugins"))
+        return importlib.import_module(name)
+
+
+rl = _plugin("roadtwin_lidar")
+rs = _plugin("roadtwin_sensors")  # the rosette scan simulator: a sensor model (issue 20)
 from roadtwin_lidar.simulate import evaluate_surface  # noqa: E402
 
 # Measured 2026-11-21 (bench/lidar.py, seeds 0-7): vertex RMSE 2.2-2.3 mm, grid RMSE 1.6-1.8 mm
@@ -44,7 +51,7 @@ def lidar():
 def scene():
     v, f, height = rl.pothole_road_mesh(road_class="C", seed=0, pothole_center=CENTER, pothole_radius_m=RADIUS,
                                         pothole_depth_m=DEPTH)
-    frames, poses = rl.simulate_scans(v, f, rl.path_poses(10, seed=0), rl.RosetteScanner(range_sigma_m=0.02),
+    frames, poses = rs.simulate_scans(v, f, rs.path_poses(10, seed=0), rs.RosetteScanner(range_sigma_m=0.02),
                                       seed=100)
     return v, f, frames, poses
 
@@ -66,9 +73,9 @@ def test_registered(lidar):
 
 
 def test_rosette_is_non_repetitive_and_fills_fov():
-    sc = rl.RosetteScanner()
-    d0 = rl.rosette_directions(2000, 0.0, 0.1, sc.fov_deg, sc.f1_hz, sc.f2_hz)
-    d1 = rl.rosette_directions(2000, 0.1, 0.1, sc.fov_deg, sc.f1_hz, sc.f2_hz)
+    sc = rs.RosetteScanner()
+    d0 = rs.rosette_directions(2000, 0.0, 0.1, sc.fov_deg, sc.f1_hz, sc.f2_hz)
+    d1 = rs.rosette_directions(2000, 0.1, 0.1, sc.fov_deg, sc.f1_hz, sc.f2_hz)
     np.testing.assert_allclose(np.linalg.norm(d0, axis=1), 1.0)
     half = np.degrees(np.arccos(np.clip(d0[:, 2], -1, 1)))
     assert half.max() <= sc.fov_deg / 2 + 1e-6 and half.max() > 0.9 * sc.fov_deg / 2 and half.min() < 5
@@ -79,7 +86,7 @@ def test_simulated_frames(scene):
     _, _, frames, poses = scene
     assert len(frames) == 10 and poses.shape == (10, 4, 4)
     n = [len(x) for x in frames]
-    assert min(n) > 0.9 * 0.95 * rl.RosetteScanner().points_per_frame  # ~5 % dropouts
+    assert min(n) > 0.9 * 0.95 * rs.RosetteScanner().points_per_frame  # ~5 % dropouts
     r = np.linalg.norm(frames[0], axis=1)
     assert 1.5 < r.min() and r.max() < 2.6  # 1.8 m above the road, 35 deg half FOV
 
@@ -258,7 +265,7 @@ def curb_scene(scene, tmp_path_factory):
     v, f, _, _ = scene
     vc = v.copy()
     vc[vc[:, 1] > EDGE_Y + 1e-6, 2] += CURB_M
-    frames, poses = rl.simulate_scans(vc, f, rl.path_poses(10, seed=0), rl.RosetteScanner(range_sigma_m=0.02),
+    frames, poses = rs.simulate_scans(vc, f, rs.path_poses(10, seed=0), rs.RosetteScanner(range_sigma_m=0.02),
                                       seed=100)
     folder = tmp_path_factory.mktemp("curb")
     paths, pose_path = rl.save_frames(folder / "frames", frames, poses, fmt="npz", pose_format="kitti")

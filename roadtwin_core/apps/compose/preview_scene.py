@@ -7,7 +7,9 @@ st come from the composer's in-memory meshes, through the same functions the wri
 (``segment_st`` / ``planar_st``, the catalog's binding rules); the materials themselves are
 parsed from the stage's own looks layer (``layers/looks.usda``, a small file, which the composer
 writes first), so the view shows the stage's materials.
-tests/apps/test_preview_scene.py checks the result against ``build_render_mesh(load_town(stage, looks=True))``.
+tests/apps/test_preview_scene.py checks the result against ``build_render_mesh(load_town(stage, looks=True))``
+without its props: the preview draws the road, defects and markings, not the roadside world
+(``layers/props.usda``).
 
 Cost (Town01, 1,000 defects, 2 cores): the parts are concatenated once (~0.05 s) and the map
 and the view are selected from that with whole-array culling; decoding the ~10 materials in

@@ -24,9 +24,10 @@ from ...plugins import PluginManager, get_plugin_manager
 from ...remesh import coarsen_defect
 from ...surface import parse_surface
 from ...town.markings import build_markings
-from ...town.placement import lane_length_km, place_defects
+from ...town.props import DEFAULT_RULES as DEFAULT_PROP_RULES, PropRule, Props, load_prop_rules, place_props
+from ...town.placement import ALONG_TRAVEL, lane_length_km, place_defects
 from ...usd.layout_io import read_layout
-from ...usd.library import ASSET_SUFFIXES, library_asset_files, read_defect_asset, write_defect_asset
+from ...usd.library import ASSET_SUFFIXES, DEFECT_CLASS, library_asset_files, read_defect_asset, write_defect_asset
 from ...usd.town import TownParts, write_town
 from ...usd.validate import validate_stage
 from .preview import write_preview
@@ -87,6 +88,19 @@ def add_library_folder(library: dict[str, list[DefectModel]], rules: ComposeRule
     return rules.replace(type_weights=weights)
 
 
+def type_semantics(pm: PluginManager, types) -> dict[str, tuple[str, bool]]:
+    """Per defect type: its semantic class (the type's optional ``semantic_class``, default
+    ``road_defect``; a look-alike says ``road_lookalike``) and whether it lies along travel (its
+    optional ``along_travel``). A type only a library folder brings (no registered generator)
+    gets the defaults."""
+    registered = pm.registry("defect_types")
+    out = {}
+    for t in sorted(types):
+        dtype = registered.get(t)
+        out[t] = (str(getattr(dtype, "semantic_class", DEFECT_CLASS)), bool(getattr(dtype, "along_travel", False)))
+    return out
+
+
 def fixed_placements(layout: TownLayout, pm: PluginManager) -> list[Placement]:
     """The layout's pinned defects, each generated from its own type, params and seed."""
     out = []
@@ -104,8 +118,11 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             pm: PluginManager | None = None, preview: bool = True, executor: str = "local",
             ray_address: str | None = None, workers: int | None = None,
             library_dir: str | Path | None = None, merger_params: dict[str, Any] | None = None,
-            texture_writer: Callable[[Path, int], dict] | None = None) -> ComposeResult:
+            texture_writer: Callable[[Path, int], dict] | None = None,
+            props: str | Path | None = "default") -> ComposeResult:
     """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's.
+    ``props``: the roadside world (``layers/props.usda``): ``"default"`` (the built-in rules),
+    ``"none"`` (no props layer) or a TOML rules file (:func:`resolve_prop_rules`).
     ``texture_writer``: ``writer(folder, seed) -> specs`` to write the textures instead of the cached
     set, which is otherwise made (or copied from the cache) in a helper process while the town is
     placed and merged.
@@ -116,6 +133,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     written and validated. A plugin manager ``pm`` of the caller's cannot travel to another
     process: the preview then runs here, at the end."""
     t0 = time.perf_counter()
+    prop_rules = resolve_prop_rules(props)   # a bad rules file: one line before any work
     preview_here = pm is not None
     with contextlib.ExitStack() as stack:
         # Started first: the helpers' interpreters boot while the layout is read.
@@ -138,7 +156,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         textures = stack.enter_context(TexturesNow(texture_writer, rules.seed) if texture_writer
                                        else TexturePrefetch(rules.seed, texture_side, scratch_dir(outdir, "textures")))
         result = _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
-                          executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir)
+                          executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir,
+                          prop_rules=prop_rules)
         for side in (texture_side, preview_side):    # what they printed, now that the run succeeded
             if side is not None:
                 side.replay_output()
@@ -180,7 +199,8 @@ class _HereOrThere:
 
 def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules, pm: PluginManager, merger_impl,
              report, textures: TexturePrefetch | TexturesNow, previewer: _HereOrThere | None, t0: float, *,
-             executor: str, ray_address, workers, library_dir) -> ComposeResult:
+             executor: str, ray_address, workers, library_dir,
+             prop_rules: tuple[PropRule, ...] = ()) -> ComposeResult:
     runner = make_executor(executor, ray_address, workers)
     # Library and markings on the local cores only: a Ray map starts and stops a cluster, costing
     # more than they do.
@@ -192,11 +212,18 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
         layout.rules = rules
     fixed = fixed_placements(layout, pm)
     rng = np.random.default_rng(rules.seed)
-    placements = place_defects(layout.segments, library, rules, rng, str(layout_path), fixed)
+    kinds = type_semantics(pm, set(library) | {p.model.defect_type for p in fixed})
+    placements = place_defects(layout.segments, library, rules, rng, str(layout_path), fixed,
+                               along_travel=ALONG_TRAVEL | {t for t, (_, along) in kinds.items() if along})
+    semantic = {t: cls for t, (cls, _) in kinds.items()}
     t_place = time.perf_counter()
 
     bounds = _bounds(layout, pad=2.0)
     surf = parse_surface(rules.surface, bounds, rules.seed, layout.terrain)
+    # Before the merge: a rule that fits nothing fails fast, with nothing written.
+    t_props = time.perf_counter()
+    props = place_town_props(layout, prop_rules, surf, bounds, rules.seed, str(layout_path), placements)
+    props_s = time.perf_counter() - t_props
     by_segment: dict[str, list[int]] = {}
     for i, p in enumerate(placements):
         for sid in p.segment_ids:
@@ -223,7 +250,7 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
         library_files = {}
         models = [m for ms in library.values() for m in ms] + [p.model for p in fixed]
         for m in models:
-            write_defect_asset(m, tmp / "library" / f"{m.name}.usda")
+            write_defect_asset(m, tmp / "library" / f"{m.name}.usda", semantic.get(m.defect_type, DEFECT_CLASS))
             library_files[m.name] = f"./library/{m.name}.usda"
         merger_values = effective_merger_params(merger_impl)
         info = {"layout": layout_path.name, "seed": rules.seed, "surface": rules.surface,
@@ -238,7 +265,8 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
                             PreviewTown(layout, merged, owners, placements, markings, tmp / "layers/looks.usda"))
 
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
-                                         library_files, info, markings, materials),
+                                         library_files, info, markings, materials, semantic_classes=semantic,
+                                         props=props),
                           on_looks=start_preview if previewer is not None else None)
         report("write", 1, 1)
         t_written = time.perf_counter()
@@ -248,11 +276,13 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
             raise RoadtwinError(f"composed stage fails validation: {errors[0].validator}: {errors[0].message}")
         t_write = time.perf_counter()
         summary = _summary(layout, placements, merged, rules, findings,
-                           {"place_s": t_place - t0, "merge_s": t_merge - t_place, "markings_s": t_markings - t_merge,
+                           {"place_s": t_place - t0, "props_s": props_s, "merge_s": t_merge - t_place - props_s,
+                            "markings_s": t_markings - t_merge,
                             "textures_s": t_textures - t_markings, "write_s": t_written - t_textures,
                             "validate_s": t_write - t_written})
         summary["merger_params"] = merger_values
         summary["markings"] = len(markings)
+        summary["props"] = {"instances": props.count if props else 0, "by_rule": props.by_rule() if props else {}}
         summary["materials"] = len(materials)
         if previewer is not None:
             summary["timings_s"].update({k: round(v, 3) for k, v in previewer.finish(pm).items()})
@@ -285,6 +315,37 @@ def _merge_segment(context, item):
     merger_impl, surf, rules = context
     segment, placements = item
     return merger_impl.merge(segment, placements, surf, rules)
+
+
+def resolve_prop_rules(props: str | Path | None) -> tuple[PropRule, ...]:
+    """The props rules ``compose(props=...)`` names: ``"default"`` the built-in rules, ``"none"``
+    (or None) none, anything else a TOML rules file (:func:`~roadtwin_core.town.props.load_prop_rules`:
+    a missing or bad file is one line)."""
+    if props is None or str(props).lower() == "none":
+        return ()
+    if str(props).lower() == "default":
+        return DEFAULT_PROP_RULES
+    return load_prop_rules(props)
+
+
+def place_town_props(layout: TownLayout, prop_rules: tuple[PropRule, ...], surf, bounds, seed: int,
+                     owner: str, placements: list[Placement] = ()) -> Props | None:
+    """The town's props on the surface model's height (None without rules), clear of the
+    ``placements`` (each defect's disc: a car stopped in a lane never covers one). Props and
+    terrain reach beyond the road, where a surface grid (ISO 8608) has no samples: points outside
+    its bounds take the height at the nearest border."""
+    if not prop_rules:
+        return None
+    lo, hi = np.array(bounds[:2]), np.array(bounds[2:])
+
+    def height(xy):
+        return np.asarray(surf.height(np.clip(np.asarray(xy, np.float64), lo, hi)), np.float64)
+    reach: dict[int, float] = {}      # per model: its farthest footprint point from its origin
+    for p in placements:
+        if id(p.model) not in reach:
+            reach[id(p.model)] = float(np.hypot(*np.asarray(p.model.footprint, np.float64)[:, :2].T).max())
+    taken = np.array([(p.x, p.y, reach[id(p.model)] * max(p.scale[:2])) for p in placements]).reshape(-1, 3)
+    return place_props(layout.segments, prop_rules, height, seed, owner, taken=taken)
 
 
 def _bounds(layout: TownLayout, pad: float) -> tuple[float, float, float, float]:

@@ -1,24 +1,38 @@
 """The ``inputs`` a reconstructor's ``run(inputs, params)`` receives, typed and checked.
 
-The Reconstructor contract passes a dict (:meth:`SurfaceInputs.as_dict`, :meth:`DefectInputs.as_dict`
-give the one ``roadtwin reconstruct`` passes); these dataclasses say which keys there are and
-what each holds, and the checks fail on a missing file or an inconsistent set of inputs before a
-plugin runs (one :class:`~roadtwin_core.RoadtwinError` naming the option).
+The Reconstructor contract passes a dict (:meth:`SurfaceInputs.as_dict`, :meth:`DefectInputs.as_dict`,
+:meth:`PhotoSet.as_dict` give the one ``roadtwin reconstruct`` passes); these dataclasses say
+which keys there are and what each holds, and the checks fail on a missing file or an
+inconsistent set of inputs before a plugin runs (one :class:`~roadtwin_core.RoadtwinError` naming
+the option).
+
+Photos (``roadtwin reconstruct photos``) come in two steps: :class:`PhotoInputs` is what a user
+names (photos or folders, the label folder, a class map, a rig preset and overrides);
+:func:`check_photo_inputs` resolves it into the :class:`PhotoSet` a plugin reads (the photo files,
+the class map's defect classes, the rig's numbers), which only the core can do.
 """
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Collection, Mapping, Sequence
 
 from ...errors import RoadtwinError
+from ...render.cameras import RIG_PRESETS
+from ...render.classmap import ClassMap, load_class_map
 
-__all__ = ["MASK_SUFFIXES", "ROAD_LABELS", "DefectInputs", "SurfaceInputs", "check_defect_inputs",
-           "check_surface_inputs"]
+__all__ = ["IMAGE_SUFFIXES", "MASK_SUFFIXES", "RIG_OVERRIDES", "ROAD_LABELS", "DefectInputs", "PhotoInputs",
+           "PhotoSet", "SurfaceInputs", "check_defect_inputs", "check_photo_inputs", "check_surface_inputs",
+           "defect_classes", "photo_rig"]
 
 ROAD_LABELS = (40, 44)   # SemanticKITTI road, parking: what a labelled frame keeps as road by default
 MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")   # images a --masks folder contributes
+IMAGE_SUFFIXES = MASK_SUFFIXES                                        # photos a folder contributes
+#: ``--rig PRESET:key=value,...`` keys -> the rig's fields
+RIG_OVERRIDES = {"height": "height_m", "pitch": "pitch_deg", "roll": "roll_deg", "hfov": "hfov_deg",
+                 "width": "width", "height_px": "height"}
 
 
 @dataclass
@@ -117,3 +131,105 @@ def check_defect_inputs(inputs: DefectInputs) -> DefectInputs:
         raise RoadtwinError("give --disparity or --left/--right, not both")
     _require(_files(inputs.disparity, inputs.left, inputs.right))
     return inputs
+
+
+@dataclass
+class PhotoInputs:
+    """What a user names for ``roadtwin reconstruct photos``: labelled road photos and the camera
+    that took them (:func:`check_photo_inputs` resolves it)."""
+
+    images: Sequence[Any]                         # photo files, or folders (their images, sorted)
+    labels: Any                                   # label folder: <image stem>.png, one class id per pixel
+    classmap: str = "builtin:road_defects_br"     # the labels' classes: builtin:NAME, NAME or a TOML file
+    rig: str = "survey"                           # camera rig preset (roadtwin_core.render.cameras.RIG_PRESETS)
+    rig_overrides: Mapping[str, float] = field(default_factory=dict)   # RIG_OVERRIDES keys -> values
+    license: str | None = None                    # recorded on every asset (default: a LICENSE file beside)
+
+
+@dataclass
+class PhotoSet:
+    """What a ``produces="defects"`` reconstructor for photos (``photo_defects``) reads."""
+
+    images: list[Path]                            # photo files
+    labels: Path                                  # label folder
+    classes: dict[int, tuple[str, str]]           # dataset class id -> (class name, roadtwin defect type)
+    rig: dict[str, Any]                           # name, width, height (px), hfov_deg, height_m, pitch_deg, roll_deg
+    license: str | None = None
+    classmap_source: str = "class map"            # for messages
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"images": list(self.images), "labels": self.labels, "classes": dict(self.classes),
+                "rig": dict(self.rig), "license": self.license, "classmap_source": self.classmap_source}
+
+
+def defect_classes(classmap: ClassMap, defect_types: Collection[str]) -> dict[int, tuple[str, str]]:
+    """{dataset class id: (class name, defect type)} for every class the map fills from one of
+    ``defect_types`` by a plain entry (an ``ego`` rule's labels are the lane, not a defect); the
+    first such type of a class names it."""
+    out: dict[int, tuple[str, str]] = {}
+    for label, cls in sorted(classmap.plain.items()):
+        if label in defect_types and cls in classmap.classes:
+            out.setdefault(classmap.classes.index(cls), (cls, label))
+    return dict(sorted(out.items()))
+
+
+def photo_rig(preset: str, overrides: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """A rig preset's numbers with ``overrides`` (:data:`RIG_OVERRIDES` keys) over them: the rig
+    fields a photo reconstructor reads. Its name is the preset's, with the overrides spelled out."""
+    p = RIG_PRESETS.get(preset)
+    if p is None:
+        raise RoadtwinError(f"--rig: no rig preset {preset!r} (presets: {', '.join(sorted(RIG_PRESETS))})")
+    rig: dict[str, Any] = {"name": p.name, "width": p.width, "height": p.height, "hfov_deg": p.hfov_deg,
+                           "height_m": p.height_m, "pitch_deg": p.pitch_deg, "roll_deg": 0.0}
+    for key, value in (overrides or {}).items():
+        if key not in RIG_OVERRIDES:
+            raise RoadtwinError(f"--rig: unknown key {key!r} (keys: {', '.join(RIG_OVERRIDES)})")
+        v = float(value)
+        if not math.isfinite(v):
+            raise RoadtwinError(f"--rig: {key} = {value!r} is not finite")
+        name = RIG_OVERRIDES[key]
+        if name in ("width", "height"):
+            if v != int(v):
+                raise RoadtwinError(f"--rig: {key} is a number of pixels, got {value!r}")
+            v = int(v)
+        rig[name] = v
+    if overrides:
+        rig["name"] = f"{preset}:" + ",".join(f"{k}={v:g}" for k, v in overrides.items())
+    if not (rig["height_m"] > 0 and rig["width"] > 0 and rig["height"] > 0 and 1 <= rig["hfov_deg"] <= 179
+            and -90 <= rig["pitch_deg"] <= 90 and -180 <= rig["roll_deg"] <= 180):
+        raise RoadtwinError(f"--rig: {rig['name']} needs a height above the road > 0 m, a positive image size, "
+                            "hfov in [1, 179] deg, pitch in [-90, 90] deg and roll in [-180, 180] deg")
+    return rig
+
+
+def _photo_files(images: Sequence[Any]) -> list[Path]:
+    """The photos: files as given, folders by their images, sorted."""
+    if not images:
+        raise RoadtwinError("no photos given")
+    out: list[Path] = []
+    for p in map(Path, images):
+        if p.is_dir():
+            found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                raise RoadtwinError(f"{p}: no images ({', '.join(IMAGE_SUFFIXES)}) in the folder")
+            out += found
+        elif not p.is_file():
+            raise RoadtwinError(f"{p}: no such image")
+        else:
+            out.append(p)
+    return out
+
+
+def check_photo_inputs(inputs: PhotoInputs, defect_types: Collection[str]) -> PhotoSet:
+    """Photos there, the label folder there, a class map with at least one class filled from one
+    of ``defect_types`` (the registered types that are defects), a known rig -> the plugin's inputs."""
+    images = _photo_files(inputs.images)
+    labels = Path(inputs.labels)
+    if not labels.is_dir():
+        raise RoadtwinError(f"{labels}: label folder not found")
+    cmap = load_class_map(inputs.classmap.removeprefix("builtin:"))
+    classes = defect_classes(cmap, defect_types)
+    if not classes:
+        raise RoadtwinError(f"{cmap.source}: class map {cmap.name!r} has no defect class (none of its classes "
+                            f"{', '.join(cmap.classes)} is filled from a defect type): nothing to reconstruct")
+    return PhotoSet(images, labels, classes, photo_rig(inputs.rig, inputs.rig_overrides), inputs.license, cmap.source)

@@ -3,7 +3,8 @@
 The plugin is asked for by name through the plugin manager. Its ``Params`` get the fields the
 command sets from its own options (``voxel_m``, ``radius_m``, ``align`` for a surface;
 ``disparity_scale``, ``grid_m`` for defects: the contract's dataclasses declare them), then the
-``--param`` values over them. Bad input is one :class:`~roadtwin_core.RoadtwinError` and nothing
+``--param`` values over them. Photos (``photo_defects``) set no field from options: their
+settings are all ``--param``. Bad input is one :class:`~roadtwin_core.RoadtwinError` and nothing
 is written.
 """
 from __future__ import annotations
@@ -16,9 +17,12 @@ from ...atomic import output_path
 from ...errors import RoadtwinError
 from ...params import apply_params, make_params
 from ...plugins import PluginManager, get_plugin_manager
-from .inputs import DefectInputs, SurfaceInputs, check_defect_inputs, check_surface_inputs
+from ...usd.library import DEFECT_CLASS
+from .inputs import (DefectInputs, PhotoInputs, SurfaceInputs, check_defect_inputs, check_photo_inputs,
+                     check_surface_inputs)
 
-__all__ = ["DefectReconstruction", "SurfaceReconstruction", "reconstruct_defects", "reconstruct_surface"]
+__all__ = ["DefectReconstruction", "PhotoReconstruction", "SurfaceReconstruction", "reconstruct_defects",
+           "reconstruct_photos", "reconstruct_surface"]
 
 SURFACE_SUFFIXES = (".usda", ".usd", ".usdc")
 
@@ -64,6 +68,35 @@ def reconstruct_defects(inputs: DefectInputs, out: str | Path, *, reconstructor:
     checked = _params(rec, reconstructor, {"disparity_scale": disparity_scale, "grid_m": grid_m}, params)
     result = rec.run(inputs.as_dict(), checked)
     return DefectReconstruction(result, rec.write(result, out))
+
+
+@dataclass
+class PhotoReconstruction:
+    result: Any           # what the plugin's run returned (models, skipped instances)
+    paths: list           # the assets written
+    photos: int           # how many photos were read
+
+
+def reconstruct_photos(inputs: PhotoInputs, out: str | Path, *, reconstructor: str = "photo_defects",
+                       params: dict[str, Any] | None = None, pm: PluginManager | None = None) -> PhotoReconstruction:
+    """Labelled road photos + their camera rig -> a folder ``out`` (replaced atomically) of
+    textured defect library assets, one per labelled defect instance (``compose --library``
+    reads them). The class map's classes filled from a registered defect type (not a look-alike)
+    are the ones reconstructed. ``params``: values for the reconstructor's ``Params`` (``--param``)."""
+    out = Path(out)
+    output_path(out, "dir")
+    pm = pm or get_plugin_manager()
+    photos = check_photo_inputs(inputs, defect_types(pm))
+    rec = _reconstructor(pm, reconstructor, "defects", "defects")
+    checked = _params(rec, reconstructor, {}, params)
+    result = rec.run(photos.as_dict(), checked)
+    return PhotoReconstruction(result, rec.write(result, out), len(photos.images))
+
+
+def defect_types(pm: PluginManager) -> set[str]:
+    """The registered defect types that are defects (a look-alike's ``semantic_class`` says it is not)."""
+    return {name for name, t in pm.registry("defect_types").items()
+            if getattr(t, "semantic_class", DEFECT_CLASS) == DEFECT_CLASS}
 
 
 def _reconstructor(pm: PluginManager | None, name: str, produces: str, what: str):

@@ -1,6 +1,7 @@
 """Where a render's cameras come from, first that applies: a ``--poses`` file (checked against the
 road: no camera below it or inside geometry), ``--views defects:SHARE`` (the view sampler),
-the stage's ``UsdGeom.Camera`` prims, random lane poses (also ``--views random``). Also the lane
+the stage's ``UsdGeom.Camera`` prims, random lane poses (also ``--views random``). Sampled poses
+keep clear of the vehicles a town's props stand in its lanes. Also the lane
 each camera drives in, for datasets with an ego-lane class."""
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from typing import Callable
 import numpy as np
 
 from ...errors import RoadtwinError
-from ...render import load_poses_file, sample_lane_poses
+from ...render import lane_keep_out, load_poses_file, sample_lane_poses
 from ...render.rig_usd import read_stage_cameras
 from ...render.view_sampler import ViewRig, chain_lanes, defect_targets, lane_ahead, sample_views
 from .lanes import nearest_lane
@@ -56,7 +57,7 @@ def plan_cameras(stage: Path, town, lanes: list, ground: Callable, rig: Rig, int
             p0 = rig.pitch_deg if rig.pitch_deg is not None else -15.0
             kw = {"pitch_deg": (p0 - 2.0, p0 + 2.0), "yaw_jitter_deg": 3.0, "roll_jitter_deg": 1.0}
         pose_list = sample_lane_poses(lanes, frames, np.random.default_rng(seed), ground(),
-                                      height=rig.mount_height_m, **kw)
+                                      height=rig.mount_height_m, keep_out=lane_keep_out(town), **kw)
         return CameraPlan(pose_list, "lanes", intrinsics, rig.stereo, rig.baseline_m)
     raise RoadtwinError(f"{stage}: no cameras or poses: the stage has no driving lane centerlines "
                         "(roadtwin:segment:centerline), no camera prims and no --poses file was given")
@@ -81,7 +82,7 @@ def _aimed_at_defects(stage, town, lanes, ground, rig: Rig, intrinsics, frames, 
     if not chained:
         raise RoadtwinError(f"{stage}: no driving lane centrelines (roadtwin:segment:centerline) to place views on")
     sampled = sample_views(chained, defect_targets(town), ground, frames, rig=vrig, share=share, seed=seed,
-                           background=background)
+                           background=background, keep_out=lane_keep_out(town))
     by_id = {lane.id: lane for lane in chained}
     records = [{k: v for k, v in view.as_dict().items() if k not in ("index", "cam_to_world")} for view in sampled]
     return CameraPlan([v.cam_to_world for v in sampled], f"defects:{share}" + (":clear" if background == "clear" else ""),

@@ -36,7 +36,7 @@ import dataclasses
 import functools
 import os
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -93,6 +93,7 @@ class CheckedOptions:
     runner: Any                    # the executor
     drive: EventDrive | None       # --events
     params: RenderParams           # --weather/--seed/--device/--backend and the renderer's --param values
+    ranges: Ranges = field(default_factory=Ranges)   # --randomize's ranges (the class map's camera targets)
 
 
 def check_options(o: RenderOptions) -> CheckedOptions:
@@ -115,7 +116,10 @@ def check_options(o: RenderOptions) -> CheckedOptions:
     drive = check_events(o, r)
     params = check_params(RenderParams(weather=o.weather, seed=o.seed, device=o.device, backend=o.backend), "render")
     params = apply_params(params, o.renderer_params, f"renderer {o.renderer}")
-    return CheckedOptions(r, view_kind, share, background, cmap, runner, drive, params)
+    # a class map may name camera targets measured from its dataset's real frames (--randomize)
+    ranges = Ranges.from_targets(cmap.camera_targets) if o.randomize and cmap is not None and cmap.camera_targets \
+        else Ranges()
+    return CheckedOptions(r, view_kind, share, background, cmap, runner, drive, params, ranges)
 
 
 @dataclass
@@ -176,7 +180,7 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
         lane_xy = ego_lane_points(plan)
     else:
         lane_xy = [None] * len(plan.poses)
-    mesh, jobs = frame_jobs(plan, scene.mesh, params, stage, o.seed, lane_xy, o.randomize)
+    mesh, jobs = frame_jobs(plan, scene.mesh, params, stage, o.seed, lane_xy, o.randomize, checked.ranges)
     ctx = RenderContext(f"{os.getpid()}-{time.time_ns()}", scene.renderer, mesh, params, cmap, scene.lane_width,
                         "normal" in fmt)
     drive = checked.drive
@@ -187,16 +191,17 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
     return FramePlan(plan, fmt, known_formats, mesh, jobs, ctx, drive)
 
 
-def frame_jobs(plan: CameraPlan, mesh, params, stage: Path, seed: int, lane_xy: list, randomize: bool):
+def frame_jobs(plan: CameraPlan, mesh, params, stage: Path, seed: int, lane_xy: list, randomize: bool,
+               ranges: Ranges | None = None):
     """(mesh, one FrameJob per camera). With ``randomize`` each frame draws its look and camera
     model from (seed, i) alone, so every executor renders the same frames; the mesh then gets the
-    look table's split materials."""
+    look table's split materials. ``ranges``: what the draws sample from (default ``Ranges()``)."""
     cams = [Camera(plan.intrinsics, p) for p in plan.poses]
     if plan.stereo:
         cams = [StereoCamera(c, plan.baseline_m) for c in cams]
     table = None
     if randomize:
-        ranges = Ranges()
+        ranges = ranges or Ranges()
         mesh, table = LookTable.split(mesh, stage.parent, tuple(ranges.verge_surfaces) + tuple(ranges.shoulder_surfaces)
                                       + ("pothole_wet",))
     jobs = []
@@ -208,7 +213,7 @@ def frame_jobs(plan: CameraPlan, mesh, params, stage: Path, seed: int, lane_xy: 
             lane, s = plan.lane_of[i]
             record.setdefault("view", {})["ego_lane"] = {"lane": lane.id, "s_m": round(s, 3)}
         if table is not None:
-            fr = draw(seed, i, base=params)
+            fr = draw(seed, i, base=params, ranges=ranges)
             look = table.look(fr.look)
             record["randomization"] = {**fr.as_dict(), "applied": look.applied}
             jobs.append(FrameJob(i, cam, check_params(fr.render, "render"), look, fr.effects, lane_xy[i], record))

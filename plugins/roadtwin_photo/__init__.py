@@ -1,0 +1,359 @@
+"""Defects from photos: labelled road photos + a known camera rig -> textured defect library assets.
+
+Registers the reconstructor ``photo_defects`` (produces ``"defects"``), run by
+``roadtwin reconstruct photos IMAGES... --labels DIR --classmap builtin:road_defects_br --rig survey -o LIBRARY``.
+
+For each image, its label (``LABELS/<image stem>.png``, one dataset class id per pixel, the same
+size as the image) is split into instances: the 8-connected components of each *defect class*
+(a class the class map fills from a roadtwin defect type: for ``road_defects_br``, crack and
+pothole). Each instance's pixels are back-projected through the rig onto the flat road
+(:mod:`.rectify`), and :mod:`.patch` makes its footprint in metres, an orthographic texture patch
+(albedo with an alpha fade into the road, roughness and normal maps derived from it) and a mesh
+on the footprint (potholes get a depth from a per-type prior with ravelled walls; cracks stay
+flush, their grooves in the normal map). :meth:`PhotoDefects.write` writes one library asset per
+instance (``roadtwin_core.usd.write_defect_asset``: interface + payloaded geometry, read back by
+``compose --library``) plus the asset's ``primvars:st``, a ``UsdPreviewSurface`` bound to it, its
+three textures under ``textures/`` and ``instances.json``; ``roadtwin:source`` names the frame,
+the instance and the frame's license.
+
+Inputs of ``run(inputs, params)``: the dict of ``roadtwin_core.apps.reconstruct.PhotoSet.as_dict()``,
+which the command builds (it resolves the class map and the rig preset, which only the core
+knows): ``images`` (paths), ``labels`` (folder), ``classes`` ({class id: (class name, defect
+type)}, the class map's defect classes), ``rig`` (a :class:`PhotoRig` or its fields as a dict),
+``license`` (optional text; default: the first line of a LICENSE file in the image's folder or up
+to three folders above it).
+
+Everything is checked and computed in ``run`` (an image without its label, a label of another
+size, no defect class, a labelled pixel whose ray misses the road: one RoadtwinError each) and
+``write`` replaces the output folder atomically, so bad input leaves nothing half-written.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field as dc_field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
+
+from roadtwin_core import DefectModel, RoadtwinError, check_params, field, hookimpl
+from roadtwin_core.atomic import atomic_output_dir
+from roadtwin_core.usd import safe_prim_name, write_defect_asset
+
+from .patch import Patch, PatchParams, instance_seed, make_patch
+from .rectify import OrthoGrid, PhotoRig, grid_around, pixel_ground_area, rectify
+
+__all__ = ["PhotoDefects", "PhotoDefectsParams", "PhotoResult", "PhotoRig", "OrthoGrid", "Patch", "grid_around",
+           "make_patch", "pixel_ground_area", "rectify"]
+
+
+@dataclass
+class PhotoDefectsParams:
+    texel_m: float = field(0.01, lo=0.001, hi=0.1, doc="texture patch resolution on the road (m per texel)")
+    fade_m: float = field(0.04, lo=0.0, hi=0.5, doc="band outside the label where the texture fades into the road (m)")
+    edge_m: float = field(0.04, lo=0.005, hi=0.5, doc="mesh edge length along the outline (m)")
+    min_pixels: int = field(30, lo=1, hi=10**7, doc="instances with fewer labelled pixels are skipped")
+    min_area_m2: float = field(0.01, lo=0.0, hi=100.0, doc="instances with a smaller footprint on the road are skipped")
+    max_texels: int = field(2048, lo=64, hi=8192, doc="texture side cap (the texel grows for larger footprints)")
+    depth_ratio: float = field(0.25, lo=0.0, hi=2.0, doc="pothole depth prior: depth = ratio x equivalent radius")
+    min_depth_m: float = field(0.02, lo=0.0, hi=0.5, doc="pothole depth prior, lower clip (m)")
+    max_depth_m: float = field(0.10, lo=0.0, hi=0.5, doc="pothole depth prior, upper clip (m)")
+    wall_ratio: float = field(0.35, lo=0.01, hi=2.0, doc="pothole wall width / equivalent radius")
+    ravel: float = field(0.35, lo=0.0, hi=1.0, doc="relative amplitude of the ravelled wall noise")
+    join_px: int = field(9, lo=0, hi=101, doc="crack labels: strokes closer than this (px, at the photo's size) "
+                         "join into one crack area (morphological closing) before instances are split")
+    max_range_m: float = field(80.0, lo=1.0, hi=10000.0, doc="a labelled pixel whose ray meets the road farther "
+                               "than this misses the road (error)")
+
+
+@dataclass
+class PhotoInstance:
+    image: str
+    label: str
+    instance: int
+    class_name: str
+    defect_type: str
+    pixels: int
+    bbox_px: tuple[int, int, int, int]           # u0, v0, u1, v1 (inclusive)
+    area_m2: float                               # the label's footprint on the road
+    range_m: float                               # distance from the camera foot to the centroid
+    patch: Patch
+    model: DefectModel
+
+
+@dataclass
+class PhotoResult:
+    instances: list[PhotoInstance]
+    skipped: list[dict] = dc_field(default_factory=list)
+    frames: int = 0
+    rig: PhotoRig | None = None
+
+    @property
+    def models(self) -> list[DefectModel]:
+        return [i.model for i in self.instances]
+
+
+def _license_for(image: Path) -> str:
+    for d in [image.parent, *list(image.parents)[1:4]]:
+        for name in ("LICENSE", "LICENSE.txt", "LICENSE.md", "COPYING"):
+            f = d / name
+            if f.is_file():
+                try:
+                    first = next((ln.strip() for ln in f.read_text(errors="replace").splitlines() if ln.strip()), "")
+                except OSError:
+                    continue
+                return f"{first or 'license'} ({f})"
+    return "unknown (no LICENSE file beside the frame)"
+
+
+def _read_rgb(path: Path) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None:
+        raise RoadtwinError(f"{path}: cannot read the image")
+    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+
+
+def _read_label(path: Path) -> np.ndarray:
+    import cv2
+
+    lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if lab is None:
+        raise RoadtwinError(f"{path}: cannot read the label")
+    if lab.ndim != 2:
+        raise RoadtwinError(f"{path}: a label holds one class id per pixel (a single-channel PNG), got {lab.shape[2]} "
+                            "channels")
+    return lab
+
+
+def _components(mask: np.ndarray, join_px: int):
+    """The 8-connected components of a class mask: ((x0, y0, width, height, pixels), the
+    component's mask inside that box). ``join_px`` > 1 first closes gaps that narrow (crack
+    strokes join into one crack area, not each stroke on its own)."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    if join_px > 1:
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (join_px, join_px)))
+    n, comp, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    for c in range(1, n):
+        x0, y0, bw, bh, npx = (int(v) for v in stats[c])
+        yield (x0, y0, bw, bh, npx), comp[y0:y0 + bh, x0:x0 + bw] == c
+
+
+def _rig(value: Any) -> PhotoRig:
+    if isinstance(value, PhotoRig):
+        return value
+    if isinstance(value, dict):
+        try:
+            return PhotoRig(**value)
+        except TypeError as exc:
+            raise RoadtwinError(f"rig: {exc}") from None
+    raise RoadtwinError(f"rig: expected a PhotoRig or its fields, got {type(value).__name__}")
+
+
+class PhotoDefects:
+    name = "photo_defects"
+    description = "labelled road photos + camera rig -> textured defect assets (back-projected onto the road)"
+    produces = "defects"
+    Params = PhotoDefectsParams
+
+    def run(self, inputs: dict[str, Any], params: PhotoDefectsParams | None = None) -> PhotoResult:
+        p, rig, classes, pairs = self._checked(inputs, params)
+        pp = PatchParams(texel_m=p.texel_m, fade_m=p.fade_m, edge_m=p.edge_m, max_texels=p.max_texels,
+                         depth_ratio=p.depth_ratio, min_depth_m=p.min_depth_m, max_depth_m=p.max_depth_m,
+                         wall_ratio=p.wall_ratio, ravel=p.ravel)
+        names: set[str] = set()
+        out: list[PhotoInstance] = []
+        skipped: list[dict] = []
+        for img, lab in pairs:
+            out += self._frame(img, lab, classes, rig, p, pp, inputs.get("license") or _license_for(img), names, skipped)
+        if not out:
+            raise RoadtwinError(f"no defect instance of at least {p.min_pixels} px in the labels of {len(pairs)} "
+                                f"frame(s) (classes {', '.join(v[0] for v in classes.values())}): nothing to write")
+        return PhotoResult(out, skipped, len(pairs), rig)
+
+    def _checked(self, inputs: dict[str, Any], params: PhotoDefectsParams | None):
+        """(params, rig, classes, [(image, label)]): everything checked before any pixel is read
+        (a bad pair late in the list fails fast too)."""
+        p = check_params(params or PhotoDefectsParams(), self.name)
+        if p.min_depth_m > p.max_depth_m:
+            raise RoadtwinError(f"{self.name}: min_depth_m {p.min_depth_m} > max_depth_m {p.max_depth_m}")
+        rig = PhotoRig(**{**asdict(_rig(inputs.get("rig"))), "max_range_m": p.max_range_m})
+        classes = {int(k): tuple(v) for k, v in (inputs.get("classes") or {}).items()}
+        if not classes:
+            raise RoadtwinError(f"{inputs.get('classmap_source', 'class map')}: no defect class (no class is filled "
+                                "from a roadtwin defect type such as pothole or crack): nothing to reconstruct")
+        images = [Path(x) for x in inputs.get("images") or []]
+        if not images:
+            raise RoadtwinError(f"{self.name}: no images given")
+        labels_dir = Path(inputs["labels"]) if inputs.get("labels") is not None else None
+        if labels_dir is None or not labels_dir.is_dir():
+            raise RoadtwinError(f"{labels_dir}: label folder not found")
+        pairs = []
+        for img in images:
+            if not img.is_file():
+                raise RoadtwinError(f"{img}: no such image")
+            lab = labels_dir / f"{img.stem}.png"
+            if not lab.is_file():
+                raise RoadtwinError(f"{img}: no label {lab} (each image needs its label, same stem, .png)")
+            pairs.append((img, lab))
+        return p, rig, classes, pairs
+
+    def _frame(self, img: Path, lab: Path, classes: dict, rig: PhotoRig, p: PhotoDefectsParams, pp: PatchParams,
+               license_text: str, names: set[str], skipped: list[dict]) -> list[PhotoInstance]:
+        """One photo's instances, numbered 1.. per photo over its classes; those too small to keep
+        go to ``skipped``. A labelled pixel whose ray misses the road is an error even when its
+        instance would be skipped (a bad rig should not pass silently)."""
+        rgb = _read_rgb(img)
+        label = _read_label(lab)
+        if label.shape != rgb.shape[:2]:
+            raise RoadtwinError(f"{lab}: label is {label.shape[1]}x{label.shape[0]} px, its image {img} is "
+                                f"{rgb.shape[1]}x{rgb.shape[0]}")
+        h, w = label.shape
+        stem = safe_prim_name(img.stem, empty="frame", lead="f")
+        out: list[PhotoInstance] = []
+        for cid in sorted(classes):
+            cname, dtype = classes[cid]
+            for (x0, y0, bw, bh, npx), sub in _components(label == cid, p.join_px if dtype == "crack" else 0):
+                vs, us = np.nonzero(sub)
+                us, vs = us + x0, vs + y0
+                _, ok = rig.backproject(us.astype(float), vs.astype(float), w, h)
+                if not ok.all():
+                    j = int(np.flatnonzero(~ok)[0])
+                    raise RoadtwinError(f"{img}: {cname} pixel ({us[j]}, {vs[j]}) looks above the road's horizon "
+                                        f"or beyond {p.max_range_m:g} m through {rig.describe()}: its ray misses "
+                                        "the road")
+                why = {"image": str(img), "class": cname, "pixels": npx}
+                if npx < p.min_pixels:
+                    skipped.append({**why, "why": "fewer than min_pixels"})
+                    continue
+                k = len(out) + 1
+                mask = np.zeros((h, w), bool)
+                mask[y0:y0 + bh, x0:x0 + bw] = sub
+                patch = make_patch(rgb, mask, rig, dtype, pp, instance_seed(str(img.name), k))
+                if patch is None or patch.area_m2 < p.min_area_m2:
+                    skipped.append({**why, "why": "footprint too small" + (
+                        "" if patch is None else f" ({patch.area_m2:.4f} m2 < min_area_m2)")})
+                    continue
+                name = f"{stem}_{dtype}_{k:02d}"
+                while name in names:
+                    name += "_b"
+                bbox = (x0, y0, x0 + bw - 1, y0 + bh - 1)
+                range_m = float(np.hypot(*patch.centroid))
+                record = {"reconstructor": self.name, "frame": str(img), "label": str(lab), "instance": k,
+                          "class": cname, "pixels": npx, "bbox_px": list(bbox),
+                          "footprint_area_m2": round(patch.area_m2, 6), "texel_m": patch.grid.texel,
+                          "prior_depth_m": round(patch.depth_m, 5), "rig": asdict(rig), "license": license_text,
+                          "range_m": round(range_m, 3)}
+                try:
+                    model = DefectModel(name, dtype, patch.vertices, patch.faces, patch.boundary, params=record,
+                                        source=f"photo {img} ({cname} instance {k}); license: {license_text}")
+                except RoadtwinError:
+                    skipped.append({**why, "why": "mesh degenerate"})
+                    continue
+                names.add(name)
+                out.append(PhotoInstance(str(img), str(lab), k, cname, dtype, npx, bbox, patch.area_m2, range_m,
+                                         patch, model))
+        return out
+
+    def reconstruct(self, inputs: dict[str, Any], params: PhotoDefectsParams | None = None) -> list[DefectModel]:
+        return self.run(inputs, params).models
+
+    def write(self, result: PhotoResult, out: str | Path) -> list[Path]:
+        """One asset per instance (``NAME.usda`` + ``NAME.geom.usda``), ``textures/NAME_{albedo,
+        roughness,normal}.png`` and ``instances.json``, in ``out`` (replaced atomically)."""
+        paths = []
+        with atomic_output_dir(out) as tmp:
+            (tmp / "textures").mkdir()
+            meta = {"reconstructor": self.name, "frames": result.frames, "rig": asdict(result.rig) if result.rig else None,
+                    "assets": [], "skipped": result.skipped}
+            for inst in result.instances:
+                write_photo_asset(inst.model, inst.patch, tmp / f"{inst.model.name}.usda")
+                paths.append(Path(out) / f"{inst.model.name}.usda")
+                meta["assets"].append({"name": inst.model.name, "image": inst.image, "class": inst.class_name,
+                                       "type": inst.defect_type, "pixels": inst.pixels, "bbox_px": list(inst.bbox_px),
+                                       "footprint_area_m2": inst.area_m2, "range_m": inst.range_m,
+                                       **{k: v for k, v in inst.model.attributes().items() if k != "source"}})
+            (tmp / "instances.json").write_text(json.dumps(meta, indent=1))
+        return paths
+
+
+def write_photo_asset(model: DefectModel, patch: Patch, path: Path) -> Path:
+    """``write_defect_asset`` plus texture coordinates on the mesh, the three textures and a
+    UsdPreviewSurface (the network of roadtwin's looks layer, plus opacity from the albedo's
+    alpha) bound to the asset."""
+    import cv2
+
+    path = Path(path)
+    write_defect_asset(model, path)
+    name = model.name
+    tex_dir = path.parent / "textures"
+    tex_dir.mkdir(exist_ok=True)
+    files = {"albedo": f"{name}_albedo.png", "roughness": f"{name}_roughness.png", "normal": f"{name}_normal.png"}
+    ok = cv2.imwrite(str(tex_dir / files["albedo"]), cv2.cvtColor(patch.albedo, cv2.COLOR_RGBA2BGRA))
+    ok &= cv2.imwrite(str(tex_dir / files["roughness"]), patch.roughness)
+    ok &= cv2.imwrite(str(tex_dir / files["normal"]), cv2.cvtColor(patch.normal, cv2.COLOR_RGB2BGR))
+    if not ok:
+        raise RoadtwinError(f"{tex_dir}: cannot write the textures of {name}")
+
+    geom = path.with_name(f"{path.stem}.geom.usda")
+    layer = Sdf.Layer.FindOrOpen(str(geom))
+    gstage = Usd.Stage.Open(layer)
+    mesh = gstage.GetPrimAtPath(f"/{name}/mesh")
+    pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+    pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(patch.st, dtype=np.float32)))
+    layer.Save()
+
+    alayer = Sdf.Layer.FindOrOpen(str(path))
+    stage = Usd.Stage.Open(alayer, load=Usd.Stage.LoadNone)
+    root = stage.GetPrimAtPath(f"/{name}")
+    mpath = f"/{name}/Looks/PhotoMaterial"
+    UsdGeom.Scope.Define(stage, f"/{name}/Looks")
+    mat = UsdShade.Material.Define(stage, mpath)
+    mat.GetPrim().SetDocumentation("texture patch cut from the photo (see roadtwin:source); alpha fades into the road")
+    surface = UsdShade.Shader.Define(stage, f"{mpath}/PreviewSurface")
+    surface.CreateIdAttr("UsdPreviewSurface")
+    mat.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+    reader = UsdShade.Shader.Define(stage, f"{mpath}/TexCoord")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+
+    def texture(tname: str, file: str, space: str) -> UsdShade.Shader:
+        tex = UsdShade.Shader.Define(stage, f"{mpath}/{tname}")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./textures/{file}"))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(space)
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
+        return tex
+
+    diffuse = texture("Diffuse", files["albedo"], "sRGB")
+    diffuse.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    diffuse.CreateOutput("a", Sdf.ValueTypeNames.Float)
+    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(diffuse.ConnectableAPI(), "rgb")
+    surface.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(diffuse.ConnectableAPI(), "a")
+    rough = texture("Roughness", files["roughness"], "raw")
+    rough.CreateOutput("r", Sdf.ValueTypeNames.Float)
+    surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).ConnectToSource(rough.ConnectableAPI(), "r")
+    normal = texture("Normal", files["normal"], "raw")
+    normal.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((2.0, 2.0, 2.0, 1.0))
+    normal.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set((-1.0, -1.0, -1.0, 0.0))
+    normal.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    surface.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(normal.ConnectableAPI(), "rgb")
+    surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
+    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
+    UsdShade.MaterialBindingAPI.Apply(root).Bind(mat)
+    root.CreateAttribute("roadtwin:photo:footprintAreaM2", Sdf.ValueTypeNames.Double, custom=True).Set(patch.area_m2)
+    root.CreateAttribute("roadtwin:photo:texelM", Sdf.ValueTypeNames.Double, custom=True).Set(patch.grid.texel)
+    alayer.Save()
+    return path
+
+
+@hookimpl
+def roadtwin_register_reconstructors(register):
+    register(PhotoDefects())

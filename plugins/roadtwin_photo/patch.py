@@ -1,0 +1,239 @@
+"""One labelled defect instance of a photo -> footprint, textures and a 2.5D mesh (core-free:
+numpy, OpenCV, scipy, shapely, triangle).
+
+1. **Rectify**: an ortho grid (``texel_m``) around the instance's road footprint plus a band
+   ``fade_m`` wide; the photo and the instance mask are sampled through the rig's homography
+   (colour bilinear, mask bilinear then >= 0.5). The footprint is that ortho mask; its area is
+   the instance's area on the road.
+2. **Mesh outline**: the footprint grown by ``fade_m`` (the band where the texture fades into
+   the road), its outer contour (holes filled, the largest part kept), simplified to half a texel
+   and resampled every ``edge_m``; a constrained Delaunay triangulation inside (no Steiner points
+   on the outline, so vertices 0..n-1 are the boundary loop at z = 0).
+3. **Relief** by type (a prior, not a measurement: a single photo has no depth):
+   ``pothole``: depth ``D = clip(depth_ratio * r_eq, min_depth_m, max_depth_m)`` (``r_eq`` the
+   footprint's equivalent radius); the wall falls from the label edge over ``wall_ratio * r_eq``
+   (smoothstep of the distance inside the label) and is *ravelled*: seeded band-limited noise of
+   relative amplitude ``ravel`` on the wall (strongest mid-wall) plus a floor roughness, never
+   above the road; outside the label (the fade band) z = 0.
+   ``depression``: the same with half the depth and no ravelling. Every other type (crack,
+   patch, ...) stays flush (z = 0); its relief lives in the normal map.
+4. **Textures** (top view, travel upwards): albedo RGBA (alpha 1 on the label, falling linearly
+   to 0 across the fade band), roughness (asphalt base, rougher where the photo has more local
+   contrast, plus ``roughness_defect`` inside the label), normal (a height field from the
+   photo's high-pass luminance, darker = lower, strengthened inside crack labels so the dark
+   strokes read as grooves; tangent space with s to the right and t up the texture).
+"""
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import triangle
+from scipy.ndimage import map_coordinates
+from shapely.geometry import Polygon
+
+from .rectify import OrthoGrid, PhotoRig, grid_around, rectify
+
+DEEP_TYPES = {"pothole": 1.0, "depression": 0.5}
+RAVELLED = {"pothole"}
+GROOVED = {"crack"}
+
+
+@dataclass
+class PatchParams:
+    texel_m: float = 0.01
+    fade_m: float = 0.04
+    edge_m: float = 0.04
+    max_texels: int = 2048
+    depth_ratio: float = 0.25
+    min_depth_m: float = 0.02
+    max_depth_m: float = 0.10
+    wall_ratio: float = 0.35
+    ravel: float = 0.35
+    roughness_base: float = 0.8
+    roughness_defect: float = 0.1
+    normal_strength: float = 1.0
+
+
+@dataclass
+class Patch:
+    grid: OrthoGrid
+    albedo: np.ndarray          # (R, C, 4) uint8 RGBA
+    roughness: np.ndarray       # (R, C) uint8
+    normal: np.ndarray          # (R, C, 3) uint8
+    footprint: np.ndarray       # (R, C) bool: the label on the road
+    area_m2: float              # footprint area on the road
+    centroid: np.ndarray        # (2,) road xy of the footprint centroid (the asset's origin)
+    vertices: np.ndarray        # (N, 3) local frame (x forward, y left, z up; origin = centroid)
+    faces: np.ndarray
+    boundary: np.ndarray        # indices 0..n-1
+    st: np.ndarray              # (N, 2) texture coordinates of the vertices
+    depth_m: float              # the prior depth used (0 = flush)
+
+
+def _smoothstep(t):
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3 - 2 * t)
+
+
+def _noise(shape_xy: np.ndarray, scale_m: float, rng: np.random.Generator) -> Callable[[np.ndarray], np.ndarray]:
+    """Seeded band-limited noise in [-1, 1] over the road: random values on a lattice of
+    ``scale_m`` through an interpolating cubic spline (a function of road xy)."""
+    lo, hi = shape_xy.min(axis=0) - scale_m, shape_xy.max(axis=0) + scale_m
+    nx = max(4, int(math.ceil((hi[0] - lo[0]) / scale_m)) + 1)
+    ny = max(4, int(math.ceil((hi[1] - lo[1]) / scale_m)) + 1)
+    vals = rng.uniform(-1, 1, (nx, ny))
+
+    def at(xy: np.ndarray) -> np.ndarray:
+        idx = np.stack([(xy[:, 0] - lo[0]) / (hi[0] - lo[0]) * (nx - 1), (xy[:, 1] - lo[1]) / (hi[1] - lo[1]) * (ny - 1)])
+        return np.clip(map_coordinates(vals, idx, order=3, mode="nearest"), -1.0, 1.0)
+
+    return at
+
+
+def instance_seed(source: str, instance: int) -> int:
+    return zlib.crc32(f"{source}#{instance}".encode())
+
+
+def outline(mask: np.ndarray, grid: OrthoGrid, edge_m: float):
+    """Outer outline of a texel mask as a simple road polygon (shapely), holes filled, the
+    largest part kept; None when nothing usable is left."""
+    import cv2
+
+    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    best = None
+    for c in contours:
+        c = c[:, 0, :].astype(float)                   # (col, row)
+        if len(c) < 3:
+            continue
+        xy = grid.to_xy(np.column_stack([c[:, 1], c[:, 0]]))
+        poly = Polygon(xy)
+        if not poly.is_valid:
+            poly = poly.buffer(0)
+        if poly.geom_type == "MultiPolygon":
+            poly = max(poly.geoms, key=lambda g: g.area)
+        if best is None or poly.area > best.area:
+            best = poly
+    if best is None or best.area <= 0:
+        return None
+    # the contour runs through boundary texel centres: grow by half a texel to the texel edges
+    poly = best.buffer(grid.texel / 2, join_style=2).simplify(grid.texel / 2, preserve_topology=True)
+    if poly.geom_type == "MultiPolygon":
+        poly = max(poly.geoms, key=lambda g: g.area)
+    return poly
+
+
+def resample_ring(poly, step: float) -> np.ndarray:
+    ring = np.asarray(poly.exterior.coords)[:-1]
+    closed = np.vstack([ring, ring[:1]])
+    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+    out = []
+    for p, q, L in zip(closed[:-1], closed[1:], seg):
+        k = max(1, int(math.ceil(L / step)))
+        out.append(p + (q - p) * (np.arange(k)[:, None] / k))
+    pts = np.vstack(out)
+    # drop near-duplicates (simplify can leave very short edges)
+    keep = np.r_[True, np.linalg.norm(np.diff(pts, axis=0), axis=1) > step * 0.05]
+    pts = pts[keep]
+    if np.linalg.norm(pts[0] - pts[-1]) <= step * 0.05:
+        pts = pts[:-1]
+    # counter-clockwise
+    a = 0.5 * np.sum(pts[:, 0] * np.roll(pts[:, 1], -1) - np.roll(pts[:, 0], -1) * pts[:, 1])
+    return pts if a > 0 else pts[::-1].copy()
+
+
+def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: str, p: PatchParams,
+               seed: int) -> Patch | None:
+    """``image`` (H, W, 3) uint8 RGB, ``mask`` (H, W) bool of one instance -> a Patch (None when
+    the footprint is too small to mesh at this texel size)."""
+    import cv2
+
+    h, w = mask.shape
+    vs, us = np.nonzero(mask)
+    # the footprint's road extent from its pixels' corners
+    cu = np.concatenate([us - 0.5, us + 0.5, us - 0.5, us + 0.5])
+    cv = np.concatenate([vs - 0.5, vs - 0.5, vs + 0.5, vs + 0.5])
+    xy, ok = rig.backproject(cu, cv, w, h)
+    xy = xy[ok]
+    grid = grid_around(xy, p.texel_m, p.fade_m + 3 * p.texel_m, p.max_texels)
+    colour = rectify(image, rig, grid)
+    cover = rectify(mask.astype(np.float32), rig, grid)
+    foot = cover >= 0.5
+    if foot.sum() < 9:
+        return None
+    t = grid.texel
+    area = float(foot.sum()) * t * t
+    rr, cc = np.nonzero(foot)
+    centroid = grid.to_xy(np.column_stack([rr.mean(), cc.mean()]))[0]
+
+    # distances (m) inside and outside the label, on the texel grid
+    inside = cv2.distanceTransform(foot.astype(np.uint8), cv2.DIST_L2, 5) * t
+    outside = cv2.distanceTransform((~foot).astype(np.uint8), cv2.DIST_L2, 5) * t
+    fade = p.fade_m
+    alpha = np.where(foot, 1.0, np.clip(1.0 - outside / max(fade, 1e-9), 0.0, 1.0))
+
+    # mesh outline: the footprint grown by the fade band
+    grown = outside <= fade
+    poly = outline(grown, grid, p.edge_m)
+    if poly is None or poly.area < (3 * p.edge_m) ** 2 / 4:
+        return None
+    loop = resample_ring(poly, p.edge_m)
+    n = len(loop)
+    seg = np.column_stack([np.arange(n), (np.arange(n) + 1) % n])
+    tri = triangle.triangulate({"vertices": loop, "segments": seg}, f"pq25a{p.edge_m ** 2 * 0.6:.10f}Y")
+    verts = tri["vertices"]
+    faces = tri["triangles"]
+    if not np.allclose(verts[:n], loop):
+        return None
+
+    # relief
+    r_eq = math.sqrt(area / math.pi)
+    z = np.zeros(len(verts))
+    depth = 0.0
+    if defect_type in DEEP_TYPES:
+        depth = DEEP_TYPES[defect_type] * float(np.clip(p.depth_ratio * r_eq, p.min_depth_m, p.max_depth_m))
+        rc = grid.to_rc(verts)
+        d_in = cv2.remap(inside.astype(np.float32), rc[:, 1].astype(np.float32)[None], rc[:, 0].astype(np.float32)[None],
+                         cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)[0]
+        wall = max(p.wall_ratio * r_eq, 2 * t)
+        s = _smoothstep(d_in / wall)
+        rng = np.random.default_rng(seed)
+        if defect_type in RAVELLED and p.ravel > 0:
+            n1 = _noise(verts, max(0.03, r_eq / 4), rng)(verts)
+            n2 = _noise(verts, max(0.015, r_eq / 10), rng)(verts)
+            s = np.clip(s + p.ravel * (0.7 * n1 + 0.3 * n2) * 4 * s * (1 - s), 0.0, 1.0)
+            s = s * (1 + 0.08 * n2 * (s > 0.95))
+        z = -depth * s
+        z[d_in <= 0] = 0.0
+    z[:n] = 0.0
+    z = np.minimum(z, 0.0)
+    verts3 = np.column_stack([verts - centroid, z])
+
+    # textures
+    lum = cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
+    sigma = max(1.0, 0.02 / t)
+    high = lum - cv2.GaussianBlur(lum, (0, 0), sigma)
+    local_std = np.sqrt(np.maximum(cv2.GaussianBlur(high * high, (0, 0), sigma), 0))
+    ref = float(np.median(local_std)) + 1e-6
+    rough = p.roughness_base + 0.1 * np.tanh(local_std / ref - 1) + p.roughness_defect * foot
+    roughness = (np.clip(rough, 0.05, 1.0) * 255 + 0.5).astype(np.uint8)
+    height = high.copy()
+    if defect_type in GROOVED:
+        dark = np.clip(-high, 0, None) * foot
+        height -= 3.0 * dark
+    height *= 0.015 * p.normal_strength / max(t, 1e-9)     # 1.5 cm per unit of luminance contrast, in texels
+    gy, gx = np.gradient(height)                            # per texel along rows (down = -x), cols (right = -y)
+    # tangent space: s to the right (+col), t up (-row)
+    nx, ny = -gx, gy
+    nrm = np.stack([nx, ny, np.ones_like(nx)], axis=-1)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    normal = ((nrm * 0.5 + 0.5) * 255 + 0.5).astype(np.uint8)
+    albedo = np.dstack([colour.astype(np.uint8), (alpha * 255 + 0.5).astype(np.uint8)])
+
+    # texture coordinates: s = column / cols, t = 1 - row / rows (texel edges)
+    rc = grid.to_rc(verts)
+    st = np.column_stack([(rc[:, 1] + 0.5) / grid.cols, 1.0 - (rc[:, 0] + 0.5) / grid.rows])
+    return Patch(grid, albedo, roughness, normal, foot, area, centroid, verts3, faces, np.arange(n), st, depth)

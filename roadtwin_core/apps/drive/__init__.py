@@ -1,0 +1,16 @@
+"""``roadtwin drive``: a vehicle drives a route through a composed town on a physics backend
+while the sensors of a rig record it on one simulation clock (issue 20).
+
+One concern per module: ``route`` (where the vehicle drives and at what speed: ``auto``, lanes or a
+poses file; a sweep's recommendations as a speed profile), ``motion`` (the physics backend drives
+it, stretch by stretch, into one :class:`~.motion.Trajectory`), ``rig`` (the rig file: which
+sensors sit where, mounted through the ``sensors`` plugin kind), ``world`` (what sensors see: the
+renderer plugin, a ray caster, labels), ``contacts`` (wheel-defect contact events), ``bag`` (the
+ROS 2 bag, MCAP storage), ``rrd`` (the rerun recording) and ``run`` (``run_drive`` ties them
+together on the one clock and writes the output folder atomically)."""
+from .route import Route, SpeedProfile, build_route, constant_speed, load_speed_profile, read_recommendations, \
+    speed_profile
+from .run import DriveOptions, SensorState, prepare_drive, run_drive
+
+__all__ = ["DriveOptions", "Route", "SensorState", "SpeedProfile", "build_route", "constant_speed",
+           "load_speed_profile", "prepare_drive", "read_recommendations", "run_drive", "speed_profile"]

