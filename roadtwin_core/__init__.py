@@ -25,7 +25,7 @@ _WHERE = {
     **dict.fromkeys(("DatasetFormat", "DefectType", "Exporter", "LayoutImporter", "Merger", "PhysicsBackend",
                      "Planner", "Reconstructor", "Renderer", "RendererBase", "Sensor", "SurfaceSource"), "contracts"),
     "RoadtwinError": "errors",
-    **dict.fromkeys(("MARKING_TYPES", "ComposeRules", "DefectModel", "FixedDefect", "LaneMarking", "MergedSegment",
+    **dict.fromkeys(("MARKING_TYPES", "ComposeRules", "DefectLook", "DefectModel", "FixedDefect", "LaneMarking", "MergedSegment",
                      "Placement", "RoadSegment", "TownLayout", "polygon_area", "triangle_areas"), "model"),
     **dict.fromkeys(("apply_params", "check_params", "describe_params", "field", "make_params"), "params"),
     **dict.fromkeys(("PluginManager", "get_plugin_manager", "hookimpl", "reset_plugin_manager"), "plugins"),

@@ -48,6 +48,35 @@ def polygon_area(loop_xy: np.ndarray) -> float:
     return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
+@dataclass(frozen=True)
+class DefectLook:
+    """A defect's own surface texture (e.g. cut from a photo): texture files by role
+    (``diffuse`` sRGB RGBA, ``roughness``, ``normal``; absolute paths) and the affine map from the
+    model's local XY (metres) to texture st: ``st = st_from_local @ [x, y, 1]``. An affine map,
+    not per-vertex st, so the look survives remeshing and merging: any piece of the defect gets
+    its st from where it lies (a decal over the defect's footprint)."""
+
+    textures: dict[str, str]
+    st_from_local: tuple[tuple[float, float, float], tuple[float, float, float]]
+
+    def st(self, local_xy: np.ndarray) -> np.ndarray:
+        a = np.asarray(self.st_from_local, dtype=np.float64)
+        return np.asarray(local_xy, dtype=np.float64)[:, :2] @ a[:, :2].T + a[:, 2]
+
+    @classmethod
+    def fit(cls, textures: dict[str, str], local_xy: np.ndarray, st: np.ndarray,
+            tolerance: float = 1e-4) -> "DefectLook | None":
+        """The look whose affine map reproduces per-vertex ``st`` (least squares); None when st
+        is not affine in XY within ``tolerance`` (st units): such a texture is no decal."""
+        xy = np.asarray(local_xy, dtype=np.float64)[:, :2]
+        st = np.asarray(st, dtype=np.float64).reshape(-1, 2)
+        design = np.column_stack([xy, np.ones(len(xy))])
+        affine, *_ = np.linalg.lstsq(design, st, rcond=None)
+        if len(xy) < 3 or np.abs(design @ affine - st).max() > tolerance:
+            return None
+        return cls(dict(textures), tuple(tuple(float(x) for x in row) for row in affine.T))
+
+
 @dataclass
 class DefectModel:
     """A 2.5D defect surface in its local frame (see module docstring)."""
@@ -60,6 +89,7 @@ class DefectModel:
     pseudo_height: np.ndarray | None = None
     source: str = "parametric"
     params: dict[str, Any] = field(default_factory=dict)
+    look: DefectLook | None = None           # its own texture; None: the type's material
 
     def __post_init__(self) -> None:
         what = f"defect model {self.name!r}"
@@ -198,6 +228,13 @@ class Placement:
 
     def world_footprint(self) -> np.ndarray:
         return self.transform_xy(self.model.footprint)
+
+    def local_xy(self, world_xy: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`transform_xy`: world XY back into the model's frame."""
+        c, s = np.cos(self.yaw), np.sin(self.yaw)
+        sx, sy, _ = self.scale
+        d = np.asarray(world_xy, dtype=np.float64)[:, :2] - (self.x, self.y)
+        return np.column_stack([(c * d[:, 0] + s * d[:, 1]) / sx, (-s * d[:, 0] + c * d[:, 1]) / sy])
 
     def attributes(self) -> dict[str, Any]:
         sx, sy, sz = self.scale

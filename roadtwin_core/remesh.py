@@ -157,4 +157,4 @@ def _coarsen(model, edge_m: float, tol: float):
         return None
     ids = np.concatenate([coarse_loop, chosen])
     return DefectModel(name=model.name, defect_type=model.defect_type, vertices=v[ids].copy(), faces=tris,
-                       boundary=np.arange(n), source=model.source, params=dict(model.params))
+                       boundary=np.arange(n), source=model.source, params=dict(model.params), look=model.look)

@@ -30,19 +30,20 @@ size, no defect class, a labelled pixel whose ray misses the road: one RoadtwinE
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field as dc_field
+from dataclasses import asdict, dataclass, field as dc_field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
+from pxr import Sdf
 
-from roadtwin_core import DefectModel, RoadtwinError, check_params, field, hookimpl
+from roadtwin_core import DefectLook, DefectModel, RoadtwinError, check_params, field, hookimpl
 from roadtwin_core.atomic import atomic_output_dir
 from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
 from .patch import Patch, PatchParams, instance_seed, make_patch
 from .rectify import OrthoGrid, PhotoRig, grid_around, pixel_ground_area, rectify
+from .surfaces import PhotoSurfaces
 
 __all__ = ["PhotoDefects", "PhotoDefectsParams", "PhotoResult", "PhotoRig", "OrthoGrid", "Patch", "grid_around",
            "make_patch", "pixel_ground_area", "rectify"]
@@ -61,6 +62,9 @@ class PhotoDefectsParams:
     max_depth_m: float = field(0.10, lo=0.0, hi=0.5, doc="pothole depth prior, upper clip (m)")
     wall_ratio: float = field(0.35, lo=0.01, hi=2.0, doc="pothole wall width / equivalent radius")
     ravel: float = field(0.35, lo=0.0, hi=1.0, doc="relative amplitude of the ravelled wall noise")
+    road_albedo: float = field(0.12, lo=0.0, hi=1.0, doc="linear luminance the road around a defect is scaled to, "
+                               "so the patch is an albedo like the town's asphalt (asphalt_worn: 0.12); 0 keeps the "
+                               "photo's exposure")
     join_px: int = field(9, lo=0, hi=101, doc="crack labels: strokes closer than this (px, at the photo's size) "
                          "join into one crack area (morphological closing) before instances are split")
     max_range_m: float = field(80.0, lo=1.0, hi=10000.0, doc="a labelled pixel whose ray meets the road farther "
@@ -164,7 +168,7 @@ class PhotoDefects:
         p, rig, classes, pairs = self._checked(inputs, params)
         pp = PatchParams(texel_m=p.texel_m, fade_m=p.fade_m, edge_m=p.edge_m, max_texels=p.max_texels,
                          depth_ratio=p.depth_ratio, min_depth_m=p.min_depth_m, max_depth_m=p.max_depth_m,
-                         wall_ratio=p.wall_ratio, ravel=p.ravel)
+                         wall_ratio=p.wall_ratio, ravel=p.ravel, road_albedo=p.road_albedo)
         names: set[str] = set()
         out: list[PhotoInstance] = []
         skipped: list[dict] = []
@@ -263,7 +267,7 @@ class PhotoDefects:
         return self.run(inputs, params).models
 
     def write(self, result: PhotoResult, out: str | Path) -> list[Path]:
-        """One asset per instance (``NAME.usda`` + ``NAME.geom.usda``), ``textures/NAME_{albedo,
+        """One asset per instance (``NAME.usda`` + ``NAME.geom.usda``), ``textures/NAME_{diffuse,
         roughness,normal}.png`` and ``instances.json``, in ``out`` (replaced atomically)."""
         paths = []
         with atomic_output_dir(out) as tmp:
@@ -282,78 +286,33 @@ class PhotoDefects:
 
 
 def write_photo_asset(model: DefectModel, patch: Patch, path: Path) -> Path:
-    """``write_defect_asset`` plus texture coordinates on the mesh, the three textures and a
-    UsdPreviewSurface (the network of roadtwin's looks layer, plus opacity from the albedo's
-    alpha) bound to the asset."""
+    """The textures under ``textures/NAME_{diffuse,roughness,normal}.png``, then the asset with them
+    as its look (``write_defect_asset``: st on the mesh, a bound UsdPreviewSurface whose opacity
+    is the albedo's alpha) and the patch's footprint area and texel size."""
     import cv2
 
     path = Path(path)
-    write_defect_asset(model, path)
-    name = model.name
     tex_dir = path.parent / "textures"
     tex_dir.mkdir(exist_ok=True)
-    files = {"albedo": f"{name}_albedo.png", "roughness": f"{name}_roughness.png", "normal": f"{name}_normal.png"}
-    ok = cv2.imwrite(str(tex_dir / files["albedo"]), cv2.cvtColor(patch.albedo, cv2.COLOR_RGBA2BGRA))
-    ok &= cv2.imwrite(str(tex_dir / files["roughness"]), patch.roughness)
-    ok &= cv2.imwrite(str(tex_dir / files["normal"]), cv2.cvtColor(patch.normal, cv2.COLOR_RGB2BGR))
+    files = {role: tex_dir / f"{model.name}_{role}.png" for role in ("diffuse", "roughness", "normal")}
+    ok = cv2.imwrite(str(files["diffuse"]), cv2.cvtColor(patch.albedo, cv2.COLOR_RGBA2BGRA))
+    ok &= cv2.imwrite(str(files["roughness"]), patch.roughness)
+    ok &= cv2.imwrite(str(files["normal"]), cv2.cvtColor(patch.normal, cv2.COLOR_RGB2BGR))
     if not ok:
-        raise RoadtwinError(f"{tex_dir}: cannot write the textures of {name}")
-
-    geom = path.with_name(f"{path.stem}.geom.usda")
-    layer = Sdf.Layer.FindOrOpen(str(geom))
-    gstage = Usd.Stage.Open(layer)
-    mesh = gstage.GetPrimAtPath(f"/{name}/mesh")
-    pv = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
-    pv.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(patch.st, dtype=np.float32)))
+        raise RoadtwinError(f"{tex_dir}: cannot write the textures of {model.name}")
+    look = DefectLook.fit({role: str(f) for role, f in files.items()}, patch.vertices, patch.st)
+    if look is None:
+        raise RoadtwinError(f"{model.name}: the patch's st is not a planar map of the footprint")
+    write_defect_asset(replace(model, look=look), path)
+    layer = Sdf.Layer.FindOrOpen(str(path))
+    root = layer.GetPrimAtPath(f"/{model.name}")
+    for attr, value in (("roadtwin:photo:footprintAreaM2", patch.area_m2), ("roadtwin:photo:texelM", patch.grid.texel)):
+        Sdf.AttributeSpec(root, attr, Sdf.ValueTypeNames.Double, Sdf.VariabilityVarying, True).default = float(value)
     layer.Save()
-
-    alayer = Sdf.Layer.FindOrOpen(str(path))
-    stage = Usd.Stage.Open(alayer, load=Usd.Stage.LoadNone)
-    root = stage.GetPrimAtPath(f"/{name}")
-    mpath = f"/{name}/Looks/PhotoMaterial"
-    UsdGeom.Scope.Define(stage, f"/{name}/Looks")
-    mat = UsdShade.Material.Define(stage, mpath)
-    mat.GetPrim().SetDocumentation("texture patch cut from the photo (see roadtwin:source); alpha fades into the road")
-    surface = UsdShade.Shader.Define(stage, f"{mpath}/PreviewSurface")
-    surface.CreateIdAttr("UsdPreviewSurface")
-    mat.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
-    reader = UsdShade.Shader.Define(stage, f"{mpath}/TexCoord")
-    reader.CreateIdAttr("UsdPrimvarReader_float2")
-    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-
-    def texture(tname: str, file: str, space: str) -> UsdShade.Shader:
-        tex = UsdShade.Shader.Define(stage, f"{mpath}/{tname}")
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"./textures/{file}"))
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(space)
-        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
-        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(reader.ConnectableAPI(), "result")
-        return tex
-
-    diffuse = texture("Diffuse", files["albedo"], "sRGB")
-    diffuse.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    diffuse.CreateOutput("a", Sdf.ValueTypeNames.Float)
-    surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(diffuse.ConnectableAPI(), "rgb")
-    surface.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(diffuse.ConnectableAPI(), "a")
-    rough = texture("Roughness", files["roughness"], "raw")
-    rough.CreateOutput("r", Sdf.ValueTypeNames.Float)
-    surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).ConnectToSource(rough.ConnectableAPI(), "r")
-    normal = texture("Normal", files["normal"], "raw")
-    normal.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((2.0, 2.0, 2.0, 1.0))
-    normal.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set((-1.0, -1.0, -1.0, 0.0))
-    normal.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
-    surface.CreateInput("normal", Sdf.ValueTypeNames.Normal3f).ConnectToSource(normal.ConnectableAPI(), "rgb")
-    surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
-    surface.CreateOutput("surface", Sdf.ValueTypeNames.Token)
-    UsdShade.MaterialBindingAPI.Apply(root).Bind(mat)
-    root.CreateAttribute("roadtwin:photo:footprintAreaM2", Sdf.ValueTypeNames.Double, custom=True).Set(patch.area_m2)
-    root.CreateAttribute("roadtwin:photo:texelM", Sdf.ValueTypeNames.Double, custom=True).Set(patch.grid.texel)
-    alayer.Save()
     return path
 
 
 @hookimpl
 def roadtwin_register_reconstructors(register):
     register(PhotoDefects())
+    register(PhotoSurfaces())

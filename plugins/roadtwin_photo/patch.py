@@ -56,6 +56,7 @@ class PatchParams:
     roughness_base: float = 0.8
     roughness_defect: float = 0.1
     normal_strength: float = 1.0
+    road_albedo: float = 0.12     # linear luminance the road around the defect is scaled to (0: keep the photo's)
 
 
 @dataclass
@@ -96,6 +97,20 @@ def _noise(shape_xy: np.ndarray, scale_m: float, rng: np.random.Generator) -> Ca
 
 def instance_seed(source: str, instance: int) -> int:
     return zlib.crc32(f"{source}#{instance}".encode())
+
+
+def to_road_albedo(colour: np.ndarray, ring: np.ndarray, target: float) -> np.ndarray:
+    """The photo's colour as an albedo: a photo holds light x albedo x exposure, so the patch is
+    scaled (in linear light) until the road around the defect (``ring``) has the luminance of
+    the town's asphalt. The defect keeps its contrast to its own road, and sits in the town's
+    road without a bright or dark halo whatever the photo's exposure was."""
+    c = colour.astype(np.float64) / 255.0
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)       # sRGB -> linear (IEC 61966-2-1)
+    lum = lin @ np.array([0.2126, 0.7152, 0.0722])
+    ref = float(np.median(lum[ring] if ring.any() else lum))
+    lin = np.clip(lin * (target / max(ref, 1e-4)), 0.0, 1.0)
+    c = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin ** (1 / 2.4) - 0.055)
+    return (c * 255 + 0.5).astype(np.uint8)
 
 
 def outline(mask: np.ndarray, grid: OrthoGrid, edge_m: float):
@@ -213,6 +228,8 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     verts3 = np.column_stack([verts - centroid, z])
 
     # textures
+    if p.road_albedo > 0:
+        colour = to_road_albedo(colour, ~foot & (outside <= fade + 3 * t), p.road_albedo)
     lum = cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
     sigma = max(1.0, 0.02 / t)
     high = lum - cv2.GaussianBlur(lum, (0, 0), sigma)

@@ -12,7 +12,10 @@ class MaterialSpec:
 
     ``diffuse``: sRGB PNG; ``roughness``: linear 8-bit PNG (or a constant when ``None``,
     ``roughness_value``); ``normal``: tangent-space normal map PNG (linear, +z out of the surface;
-    ``None`` for flat). ``opacity`` < 1 is unused by the built-ins.
+    ``None`` for flat). ``wrap``: ``repeat`` for surfaces that tile, ``clamp`` for a decal (a
+    defect's own texture over its footprint). ``opacity_from_alpha``: the diffuse's alpha drives
+    opacity (a stand-alone defect asset fading into whatever road it is shown over; never in a
+    composed town, where the defect is cut into the road and nothing lies beneath).
     """
 
     name: str
@@ -22,6 +25,8 @@ class MaterialSpec:
     normal: str | None = None
     metallic: float = 0.0
     doc: str = ""
+    wrap: str = "repeat"
+    opacity_from_alpha: bool = False
 
 
 # Road kinds -> material; unknown kinds use "asphalt".

@@ -6,18 +6,25 @@ mesh, the boundary loop and the per-vertex pseudo-height flags, so a model round
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, Vt
+from pxr import Sdf, Usd, UsdGeom, UsdShade, Vt
 
 from ..errors import RoadtwinError
-from ..model import DefectModel
+from ..looks.catalog import MaterialSpec
+from ..model import DefectLook, DefectModel
 from .checks import open_stage
+from .looks import define_material
+from .looks_reader import bound_material
 from .stage import _array, apply_labels, new_stage, read_mesh, set_attrs, set_kind, write_mesh
 
 ASSET_SUFFIXES = (".usda", ".usd", ".usdc")   # what an interface file may be
 GEOM_SUFFIX = ".geom.usda"                    # its geometry payload, beside it
+LOOK_MATERIAL = "Surface"                     # /<asset>/Looks/Surface: a textured asset's own material
+LOOK_ROLES = ("diffuse", "roughness", "normal")
+ST_AFFINE_TOLERANCE = 1e-4                    # st must be affine in local XY to be a decal (st units)
 
 
 def is_asset_file(path: Path) -> bool:
@@ -58,6 +65,9 @@ def write_defect_asset(model: DefectModel, path: str | Path, semantic_class: str
     pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar("roadtwin:pseudoHeight", Sdf.ValueTypeNames.BoolArray,
                                                  UsdGeom.Tokens.vertex)
     pv.Set(Vt.BoolArray([bool(b) for b in model.pseudo_height]))
+    if model.look is not None:
+        st = UsdGeom.PrimvarsAPI(prim).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex)
+        st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(model.look.st(model.vertices), dtype=np.float32)))
     gstage.GetRootLayer().Save()
 
     stage = new_stage(path, name, f"roadtwin defect asset: {name}")
@@ -70,9 +80,53 @@ def write_defect_asset(model: DefectModel, path: str | Path, semantic_class: str
     lo, hi = model.vertices.min(axis=0), model.vertices.max(axis=0)
     UsdGeom.ModelAPI(p).SetExtentsHint(Vt.Vec3fArray([tuple(lo.tolist()), tuple(hi.tolist())]))
     p.GetPayloads().AddPayload(f"./{geom_path.name}")
+    if model.look is not None:
+        _write_look(stage, p, model, path.parent)
     stage.GetRootLayer().Save()
     del root
     return path
+
+
+def _write_look(stage: Usd.Stage, prim: Usd.Prim, model: DefectModel, folder: Path) -> None:
+    """The asset's own texture: files copied to ``textures/<name>_<role>.png`` beside the asset and
+    a ``UsdPreviewSurface`` (looks layer network, clamped, opacity from alpha) bound to it."""
+    files = {}
+    (folder / "textures").mkdir(exist_ok=True)
+    for role in LOOK_ROLES:
+        src = model.look.textures.get(role)
+        if not src:
+            continue
+        dst = folder / "textures" / f"{model.name}_{role}{Path(src).suffix}"
+        if not dst.exists() or not dst.samefile(src):
+            shutil.copyfile(src, dst)
+        files[role] = dst.name
+    if "diffuse" not in files:
+        raise RoadtwinError(f"defect model {model.name!r}: its look has no diffuse texture")
+    spec = MaterialSpec(LOOK_MATERIAL, files["diffuse"], files.get("roughness"), normal=files.get("normal"),
+                        wrap="clamp", opacity_from_alpha=True,
+                        doc=f"the defect's own texture (source: {model.source}); alpha fades into the road")
+    UsdGeom.Scope.Define(stage, f"{prim.GetPath()}/Looks")
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(define_material(stage, str(prim.GetPath()), spec, "./textures"))
+
+
+def read_look(mesh_prim: Usd.Prim, points: np.ndarray) -> DefectLook | None:
+    """A textured asset's look: the bound material's texture files and its st as an affine map
+    of local XY (None when there is no textured material roadtwin reads, or st is not affine:
+    not a decal; the asset then wears its type's material like a parametric one)."""
+    try:
+        material = bound_material(mesh_prim, {})      # a binding on the root prim is inherited
+    except RoadtwinError:
+        return None
+    pv = UsdGeom.PrimvarsAPI(mesh_prim).GetPrimvar(material.st_name if material else "st")
+    if material is None or material.diffuse_texture is None or not material.diffuse_texture.path or not pv:
+        return None
+    st = pv.ComputeFlattened() if pv.GetInterpolation() in (UsdGeom.Tokens.vertex, UsdGeom.Tokens.varying) else None
+    if st is None or len(st) != len(points):
+        return None
+    textures = {role: t.path for role, t in (("diffuse", material.diffuse_texture),
+                                             ("roughness", material.roughness_texture),
+                                             ("normal", material.normal_texture)) if t is not None and t.path}
+    return DefectLook.fit(textures, points, st, ST_AFFINE_TOLERANCE)
 
 
 def read_defect_asset(path: str | Path) -> DefectModel:
@@ -115,6 +169,7 @@ def read_defect_asset(path: str | Path) -> DefectModel:
         raise RoadtwinError(f"{path}: roadtwin:params on {root.GetPath()} is not a JSON object") from None
     source = root.GetAttribute("roadtwin:source").Get() if root.HasAttribute("roadtwin:source") else None
     try:
-        return DefectModel(root.GetName(), defect_type, pts, faces, loop, flags, str(source or path.name), params)
+        return DefectModel(root.GetName(), defect_type, pts, faces, loop, flags, str(source or path.name), params,
+                           read_look(mesh_prim, pts))
     except RoadtwinError as exc:
         raise RoadtwinError(f"{path}: {str(exc).split(': ', 1)[-1]}") from None

@@ -35,19 +35,21 @@ def material_path(root: str, name: str) -> str:
     return f"{root}/Looks/{name}"
 
 
-def _texture(stage: Usd.Stage, path: str, file: str, color_space: str, st: UsdShade.Shader) -> UsdShade.Shader:
+def _texture(stage: Usd.Stage, path: str, file: str, color_space: str, st: UsdShade.Shader,
+             texture_dir: str, wrap: str) -> UsdShade.Shader:
     tex = UsdShade.Shader.Define(stage, path)
     tex.CreateIdAttr("UsdUVTexture")
-    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"{TEXTURE_DIR}/{file}"))
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(f"{texture_dir}/{file}"))
     tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(color_space)
-    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("repeat")
-    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("repeat")
+    tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set(wrap)
+    tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set(wrap)
     tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(st.ConnectableAPI(), "result")
     return tex
 
 
-def define_material(stage: Usd.Stage, root: str, spec: MaterialSpec) -> UsdShade.Material:
-    """One material with the network of the module docstring."""
+def define_material(stage: Usd.Stage, root: str, spec: MaterialSpec, texture_dir: str = TEXTURE_DIR) -> UsdShade.Material:
+    """One material with the network of the module docstring (``<root>/Looks/<name>``; texture
+    files under ``texture_dir``, relative to the layer that holds the material)."""
     path = material_path(root, spec.name)
     mat = UsdShade.Material.Define(stage, path)
     if spec.doc:
@@ -62,18 +64,21 @@ def define_material(stage: Usd.Stage, root: str, spec: MaterialSpec) -> UsdShade
     reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
     reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
 
-    diffuse = _texture(stage, f"{path}/Diffuse", spec.diffuse, "sRGB", reader)
+    diffuse = _texture(stage, f"{path}/Diffuse", spec.diffuse, "sRGB", reader, texture_dir, spec.wrap)
     diffuse.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
     surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(diffuse.ConnectableAPI(), "rgb")
+    if spec.opacity_from_alpha:
+        diffuse.CreateOutput("a", Sdf.ValueTypeNames.Float)
+        surface.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(diffuse.ConnectableAPI(), "a")
     roughness = surface.CreateInput("roughness", Sdf.ValueTypeNames.Float)
     if spec.roughness:
-        tex = _texture(stage, f"{path}/Roughness", spec.roughness, "raw", reader)
+        tex = _texture(stage, f"{path}/Roughness", spec.roughness, "raw", reader, texture_dir, spec.wrap)
         tex.CreateOutput("r", Sdf.ValueTypeNames.Float)
         roughness.ConnectToSource(tex.ConnectableAPI(), "r")
     else:
         roughness.Set(float(spec.roughness_value))
     if spec.normal:
-        tex = _texture(stage, f"{path}/Normal", spec.normal, "raw", reader)
+        tex = _texture(stage, f"{path}/Normal", spec.normal, "raw", reader, texture_dir, spec.wrap)
         tex.CreateInput("scale", Sdf.ValueTypeNames.Float4).Set((2.0, 2.0, 2.0, 1.0))
         tex.CreateInput("bias", Sdf.ValueTypeNames.Float4).Set((-1.0, -1.0, -1.0, 0.0))
         tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)

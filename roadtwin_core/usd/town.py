@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from typing import Callable
 from pathlib import Path
 
+import shutil
+
 import numpy as np
 from pxr import Sdf, UsdGeom, UsdPhysics
 
@@ -61,6 +63,41 @@ class TownParts:
     materials: dict[str, MaterialSpec] = field(default_factory=dict)  # name -> spec (textures/ beside town.usda)
     semantic_classes: dict[str, str] = field(default_factory=dict)    # defect type -> class (default road_defect)
     props: Props | None = None            # the roadside world (layers/props.usda); None: no props layer
+    road_textures: dict[str, str] = field(default_factory=dict)  # extra roadMaterial variant -> material (in materials)
+    road_material: str = DEFAULT_ROAD_MATERIAL  # the roadMaterial variant selected
+
+
+def defect_material_name(p: Placement) -> str:
+    """The material a defect instance's pieces wear: its model's own texture (a photo-made
+    asset: ``decal_<model>``) or its type's material from the catalog."""
+    return f"decal_{p.model.name}" if p.model.look is not None else defect_material(p.model.defect_type)
+
+
+def defect_st(p: Placement, vertices: np.ndarray) -> np.ndarray:
+    """st of a defect piece's vertices: the model's own texture mapped back through the
+    placement (so whichever piece of the footprint the merger made shows its part of the
+    texture), else world-planar like the road."""
+    if p.model.look is None:
+        return planar_st(vertices)
+    return p.model.look.st(p.local_xy(np.asarray(vertices)[:, :2]))
+
+
+def decal_materials(outdir: Path, placements: list[Placement]) -> dict[str, MaterialSpec]:
+    """One clamped material per textured model placed, its textures copied into
+    ``outdir/textures`` (``decal_<model>_<role>.png``) so the town is self-contained."""
+    specs: dict[str, MaterialSpec] = {}
+    models = {p.model.name: p.model for p in placements if p.model.look is not None}
+    for name in sorted(models):
+        files = {}
+        for role, src in sorted(models[name].look.textures.items()):
+            dst = outdir / "textures" / f"decal_{name}_{role}{Path(src).suffix}"
+            dst.parent.mkdir(exist_ok=True)
+            shutil.copyfile(src, dst)
+            files[role] = dst.name
+        specs[f"decal_{name}"] = MaterialSpec(f"decal_{name}", files["diffuse"], files.get("roughness"),
+                                              normal=files.get("normal"), wrap="clamp",
+                                              doc=f"defect {name}'s own texture (source: {models[name].source})")
+    return specs
 
 
 def segment_st(seg: RoadSegment, vertices: np.ndarray) -> np.ndarray:
@@ -83,12 +120,13 @@ def marking_prim_names(markings: list[MarkingMesh]) -> list[str]:
     return names
 
 
-def road_variants(segments: list[RoadSegment]) -> dict[str, list[tuple[str, str]]]:
+def road_variants(segments: list[RoadSegment], extra: dict[str, str] | None = None) -> dict[str, list[tuple[str, str]]]:
     """``roadMaterial`` variant -> bindings of the driving and junction surfaces. The default
     variant keeps the catalog's per-kind look (worn lanes, newer junctions); the others pave
-    both with the variant's material."""
+    both with the variant's material. ``extra``: more variants (name -> material), e.g. the
+    surfaces cut from photos that ``compose --road-textures`` brings."""
     out = {}
-    for variant, material in ROAD_MATERIAL_VARIANTS.items():
+    for variant, material in {**ROAD_MATERIAL_VARIANTS, **(extra or {})}.items():
         out[variant] = [(seg.prim_path, kind_material(seg.kind) if variant == DEFAULT_ROAD_MATERIAL else material)
                         for seg in segments if seg.kind in VARIANT_KINDS]
     return out
@@ -215,10 +253,11 @@ def _write_looks_layer(outdir: Path, doc: str, parts: TownParts, pieces: _Pieces
     looks = _readable_layer(outdir, "looks", lay.name, doc + ": materials and their bindings")
     bindings = [(seg.prim_path, kind_material(seg.kind)) for seg in lay.segments if seg.kind not in VARIANT_KINDS]
     for i, p in enumerate(parts.placements):
-        material = defect_material(p.model.defect_type)
+        material = defect_material_name(p)
         bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
     bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
-    write_looks(looks, root, parts.materials, bindings, road_variants(lay.segments), DEFAULT_ROAD_MATERIAL)
+    materials = {**parts.materials, **decal_materials(outdir, parts.placements)}
+    write_looks(looks, root, materials, bindings, road_variants(lay.segments, parts.road_textures), parts.road_material)
     looks.Save()
 
 
@@ -245,7 +284,7 @@ def _write_defects(outdir: Path, doc: str, parts: TownParts, pieces: _Pieces) ->
     with Sdf.ChangeBlock():
         for i, p in enumerate(parts.placements):
             for seg_id, v, f in pieces.get(i, []):
-                author_mesh_geometry(geometry, f"{root}/Defects/{p.instance_id}/{seg_id}", v, f, planar_st(v))
+                author_mesh_geometry(geometry, f"{root}/Defects/{p.instance_id}/{seg_id}", v, f, defect_st(p, v))
         define_prim(defects, f"{root}/Defects", "Xform", "group")
         for i, p in enumerate(parts.placements):
             prim = define_prim(defects, f"{root}/Defects/{p.instance_id}", "Xform", "component")

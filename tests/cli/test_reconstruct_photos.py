@@ -56,7 +56,7 @@ def test_cli_writes_a_library(photos, tmp_path):
                 "builtin:road_defects_br", "--rig", "survey", "-o", out)
     assert r.returncode == 0, r.stderr
     assert "1 asset(s) from 1 photo(s) (1 pothole)" in r.stdout
-    assert (out / "frame_pothole_01.usda").exists() and (out / "textures/frame_pothole_01_albedo.png").exists()
+    assert (out / "frame_pothole_01.usda").exists() and (out / "textures/frame_pothole_01_diffuse.png").exists()
 
 
 def test_image_without_label(photos, tmp_path):

@@ -11,18 +11,20 @@ The command line and its bad input: tests/cli/test_reconstruct_photos.py.
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 import triangle
-from pxr import Usd, UsdShade
+from pxr import Usd, UsdGeom, UsdShade
 
 from photo_scene import CLASSES, SURVEY, ground_texture, render_photo, save_pair
 from roadtwin_core import ComposeRules, RoadSegment, TownLayout
 from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
 from roadtwin_photo import PhotoDefects, PhotoDefectsParams
+from roadtwin_photo.patch import to_road_albedo
 
 
 @pytest.mark.parametrize("centre, axes", [((6.0, 0.3), (0.45, 0.3)), ((9.0, -1.0), (0.6, 0.4))])
@@ -70,12 +72,14 @@ def test_photo_asset_round_trips_and_validates(photo_library):
     for f in files:
         errors = [x for x in validate_stage(f) if x.severity == "Error"]
         assert errors == [], errors
-        for kind in ("albedo", "roughness", "normal"):
+        for kind in ("diffuse", "roughness", "normal"):
             assert (photo_library / "textures" / f"{f.stem}_{kind}.png").stat().st_size > 0
+        look = read_defect_asset(f).look            # the texture travels with the model (compose --library)
+        assert look is not None and Path(look.textures["diffuse"]).samefile(photo_library / "textures" / f"{f.stem}_diffuse.png")
         stage = Usd.Stage.Open(str(f))
         root = stage.GetDefaultPrim()
         mat = UsdShade.MaterialBindingAPI(root).ComputeBoundMaterial()[0]
-        assert mat and mat.GetPrim().GetName() == "PhotoMaterial"
+        assert mat and mat.GetPrim().GetName() == "Surface"
         assert "license: CC0" in root.GetAttribute("roadtwin:source").Get()
     crack = next(read_defect_asset(f) for f in files if "crack" in f.name)
     assert np.all(crack.vertices[:, 2] == 0)             # flush: the groove is in the normal map
@@ -95,3 +99,63 @@ def test_photo_asset_composes_into_a_town_that_validates(photo_library, tmp_path
     models = [p.GetAttribute("roadtwin:defect:model").Get() for p in stage.GetPrimAtPath("/Town/Defects").GetChildren()]
     assert any(m.startswith("lib_frame_") for m in models), models
     assert not [f for f in validate_stage(done.town) if f.severity == "Error"]
+
+
+def test_photo_texture_reaches_the_composed_town(photo_library, tmp_path):
+    """Each placed photo defect wears its own texture in the town: a clamped material with the
+    library's pixels, bound to its pieces, and st that, at every piece vertex lying on one of the
+    asset's own vertices, equals the st the reconstructor authored there."""
+    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
+    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
+    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
+    layout = tmp_path / "road.usda"
+    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=6, seed=3, surface="flat",
+                                                          type_weights={"pothole": 1.0}, models_per_type=1)), layout)
+    done = compose(layout, tmp_path / "town", library_dir=photo_library, preview=False, executor="serial")
+    stage = Usd.Stage.Open(str(done.town))
+    checked = 0
+    for inst in stage.GetPrimAtPath("/Town/Defects").GetChildren():
+        model = inst.GetAttribute("roadtwin:defect:model").Get()
+        if not model.startswith("lib_frame_"):
+            continue
+        asset = photo_library / f"{model.removeprefix('lib_')}.usda"
+        astage = Usd.Stage.Open(str(asset))
+        amesh = UsdGeom.Mesh(next(p for p in Usd.PrimRange(astage.GetDefaultPrim()) if p.IsA(UsdGeom.Mesh)))
+        a_xy = np.asarray(amesh.GetPointsAttr().Get(), float)[:, :2]
+        a_st = np.asarray(UsdGeom.PrimvarsAPI(amesh).GetPrimvar("st").Get(), float)
+        x, y, yaw = inst.GetAttribute("roadtwin:defect:poseXYYaw").Get()
+        sx, sy, _ = inst.GetAttribute("roadtwin:defect:scale").Get()
+        c, s = np.cos(yaw), np.sin(yaw)
+        world = np.column_stack([c * a_xy[:, 0] * sx - s * a_xy[:, 1] * sy + x, s * a_xy[:, 0] * sx + c * a_xy[:, 1] * sy + y])
+        for piece in inst.GetChildren():
+            mat = UsdShade.MaterialBindingAPI(piece).ComputeBoundMaterial()[0]
+            assert mat.GetPrim().GetName() == f"decal_{model}"
+            diffuse = mat.GetPrim().GetChild("Diffuse")
+            assert diffuse.GetAttribute("inputs:wrapS").Get() == "clamp"
+            town_png = Path(diffuse.GetAttribute("inputs:file").Get().resolvedPath)
+            assert town_png.read_bytes() == (photo_library / "textures" / f"{asset.stem}_diffuse.png").read_bytes()
+            mesh = UsdGeom.Mesh(piece)
+            p_xy = np.asarray(mesh.GetPointsAttr().Get(), float)[:, :2]
+            p_st = np.asarray(UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get(), float)
+            d = np.linalg.norm(p_xy[:, None] - world[None], axis=2)
+            i, j = np.nonzero(d < 1e-6)
+            assert len(i) >= 3
+            np.testing.assert_allclose(p_st[i], a_st[j], atol=1e-4)
+            checked += 1
+    assert checked
+
+
+def test_patch_colour_becomes_an_albedo_like_the_towns_asphalt():
+    """A bright photo (grey road at sRGB 200, a pothole at 100) becomes an albedo whose road ring
+    has the asphalt's linear luminance, and the pothole keeps its linear contrast to the road."""
+    def linear(v):
+        c = np.asarray(v, float) / 255
+        return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+    colour = np.full((40, 40, 3), 200, np.uint8)
+    colour[10:30, 10:30] = 100
+    ring = np.ones((40, 40), bool)
+    ring[5:35, 5:35] = False
+    out = to_road_albedo(colour, ring, 0.12)
+    assert linear(out[0, 0, 0]) == pytest.approx(0.12, abs=0.004)
+    assert linear(out[20, 20, 0]) / linear(out[0, 0, 0]) == pytest.approx(linear(100) / linear(200), rel=0.03)

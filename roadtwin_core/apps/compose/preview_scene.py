@@ -24,13 +24,13 @@ import numpy as np
 from pxr import Usd, UsdShade
 
 from ...errors import RoadtwinError
-from ...looks.catalog import defect_material, kind_material, marking_material
+from ...looks.catalog import kind_material, marking_material
 from ...model import MergedSegment, Placement, TownLayout
 from ...render import Lane
 from ...render.scene import DEFAULT_MATERIAL, RenderMaterial, RenderMesh, class_names
 from ...usd.looks_reader import decode_texture, parse_material, srgb_to_linear
 from ...usd.stage import planar_st
-from ...usd.town import segment_st
+from ...usd.town import defect_material_name, defect_st, segment_st
 
 VIEW_RANGE_M = 150.0     # road drawn in the perspective view: this far around the camera ...
 VIEW_BEHIND_M = 5.0      # ... and no more than this behind it (without a view wedge)
@@ -165,9 +165,14 @@ class PreviewTown:
         uv = road_st[faces]
         if defect.any():
             uv[defect] = np.asarray(planar_st(vertices), np.float32)[faces[defect]]
+            for k in np.unique(place[defect]):
+                if self.placements[k].model.look is not None:       # a textured model: its own st
+                    sel = place == k
+                    corners = vertices[faces[sel]].reshape(-1, 3)
+                    uv[sel] = np.asarray(defect_st(self.placements[k], corners), np.float32).reshape(-1, 3, 2)
         # materials: only those of the faces kept, decoded once each (a 1024 px material is ~30 MB)
         stage_mats = _stage_materials(self.looks_layer)
-        p_mat = [defect_material(p.model.defect_type) for p in self.placements]
+        p_mat = [defect_material_name(p) for p in self.placements]
         names = sorted({p_mat[i] for i in np.unique(place[defect])} | {g.mats[k] for k in np.unique(part[~defect])})
         materials, slot = [DEFAULT_MATERIAL], {}
         for name in names:
