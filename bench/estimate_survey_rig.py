@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from roadtwin_core.datasets.folders import find_pairs, read_label
+from roadtwin_photo.lane_rig import frame_estimate   # the per-frame geometry (photo reconstructor's lane_width_m)
 
 def _default_data() -> str:
     """../shared/data/road_defects_br/train beside the checkout (or beside any parent folder)."""
@@ -38,54 +39,6 @@ def _default_data() -> str:
         if cand.is_dir():
             return str(cand)
     return "../shared/data/road_defects_br/train"
-
-
-def lane_edges(label: np.ndarray, margin: int = 2, min_width: int = 6):
-    """Rows and left / right edge columns of the ego lane, rows where the lane touches the
-    left or right border (or is narrower than ``min_width``) left out."""
-    from scipy import ndimage
-
-    lane = ndimage.binary_fill_holes(label == 1)
-    lab, n = ndimage.label(lane)
-    if n == 0:
-        return None
-    lane = lab == (1 + int(np.argmax(ndimage.sum(lane, lab, range(1, n + 1)))))
-    rows = np.flatnonzero(lane.any(1))
-    left = np.array([np.argmax(lane[r]) for r in rows])
-    right = np.array([lane.shape[1] - 1 - np.argmax(lane[r, ::-1]) for r in rows])
-    w = label.shape[1]
-    keep_l = (left > margin) & (right - left >= min_width)
-    keep_r = (right < w - 1 - margin) & (right - left >= min_width)
-    return rows, left, right, keep_l, keep_r
-
-
-def fit_edge(rows: np.ndarray, cols: np.ndarray):
-    """x = a + b * v through the edge pixels (Huber-robust), and the RMS residual in pixels."""
-    import cv2
-
-    pts = np.column_stack([cols, rows]).astype(np.float32)
-    vx, vy, x0, y0 = cv2.fitLine(pts, cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
-    b = vx / vy
-    a = x0 - b * y0
-    resid = cols - (a + b * rows)
-    return float(a), float(b), float(np.sqrt(np.mean(resid ** 2)))
-
-
-def frame_estimate(label: np.ndarray, min_rows: int = 60, max_rms: float = 3.0):
-    """Horizon row, vanishing column and width slope of one frame, or None if the lane edges
-    are not both long straight lines (curves, missing labels)."""
-    e = lane_edges(label)
-    if e is None:
-        return None
-    rows, left, right, kl, kr = e
-    if kl.sum() < min_rows or kr.sum() < min_rows:
-        return None
-    al, bl, rl = fit_edge(rows[kl], left[kl])
-    ar, br, rr = fit_edge(rows[kr], right[kr])
-    if max(rl, rr) > max_rms or br - bl <= 1e-3:
-        return None
-    v_h = -(ar - al) / (br - bl)
-    return {"v_h": v_h, "u_vp": al + bl * v_h, "slope": br - bl, "rms": max(rl, rr)}
 
 
 def rig_from(v_h: float, slope: float, u_vp: float, width: int, height: int, hfov_deg: float, lane_width: float):
@@ -108,7 +61,7 @@ def main(argv=None) -> int:
     for s in samples:
         lab = read_label(s.label, 4)
         shape = lab.shape
-        e = frame_estimate(lab)
+        e = frame_estimate(lab == 1)
         if e is not None:
             est.append(e)
     if not est:

@@ -63,7 +63,14 @@ On the device, ``unpack.sh`` reads ROADTWIN_GPU_ROOT (default /root: the stage i
 ROADTWIN_GPU_PIP_ARGS (more pip arguments). A call made from the repository root that runs
 ``python3 -m roadtwin_core.cli`` imports the tree's ``roadtwin_core`` (the current directory
 comes first) and the wheel's plugins; the ``roadtwin`` command runs the wheel's code alone.
-Re-pack after changing a plugin or the entry points.
+Re-pack after changing a plugin or the entry points, and when the working tree has grown since
+packing (a call that would carry over 64 MiB is refused: the parts were cut to the room the tree
+left then; ``--skip-download .gpu/wheels`` re-packs offline). Where there is no time for that,
+the parts travel as well in smaller slices: ``tar -cf - -C .gpu pack1 pack2 pack3 | split -b 32M
+-d - .gpu/chunks/c`` here, one call per slice carrying ``.gpu/chunks/cNN`` and copying it to
+``/root/chunks``, then ``cat /root/chunks/c* | tar -xf - -C /root/untar`` and ``cp -f`` every
+pack's files to ``/root/roadtwin-stage`` before sourcing ``unpack.sh`` (done so on 2026-11-26:
+four calls for a 28 MiB tree).
 
 A missing wheel (not on the index for that Python and platform, or not in the
 ``--skip-download`` folder) is one line naming it, exit 2.

@@ -9,7 +9,7 @@ copy of a sample layout with the look-alike types weighted in, composed with the
 --classmap builtin:road_defects_br``; the frames of all scenes are packed (``bench/perception.py
 pack``: JPEG + class-mapped PNG labels at 512x320) into one folder, names prefixed by the scene.
 
-    .venv/bin/python bench/synthetic_set.py --library LIB --frames 1000 -o OUT [--device cuda]
+    .venv/bin/python bench/synthetic_set.py --library LIB [--road-textures MATS] --frames 1000 -o OUT [--device cuda] [--jobs N]
     # OUT/synthetic/{images,labels,classes.json}: what bench/perception.py --synthetic reads
 
 Prints per scene: compose seconds, render seconds and frames/s, pack seconds. Not a test.
@@ -24,6 +24,7 @@ import shutil
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,15 +47,20 @@ class Scene:
     defects: int
     surface: str | None = None      # compose --surface (None: the layout's)
     material: str | None = None     # render --material (a roadMaterial variant; None: the stage's)
+    road_photo: int | None = None   # with --road-textures: the index of the photo surface the roads wear
 
 
+# Dense defects (the real frames hold 0.27 % pothole and 0.79 % crack pixels; a frame of a
+# sparse town holds a tenth of that): the highway is ~2.5 km of two lanes.
 SCENES = (
-    Scene("highway_a", "stages/highway.usda", 11, 400),
-    Scene("highway_b", "stages/highway.usda", 12, 600, surface="iso8608:C:0.2"),
-    Scene("highway_c", "stages/highway.usda", 13, 300, surface="iso8608:A:0.2"),
-    Scene("town", "stages/town.usda", 5, 150),
-    Scene("town01", "stages/town01.usda", 7, 800),
+    Scene("highway_a", "stages/highway.usda", 11, 1200),
+    Scene("highway_b", "stages/highway.usda", 12, 1500, surface="iso8608:C:0.2"),
+    Scene("highway_c", "stages/highway.usda", 13, 1000, surface="iso8608:A:0.2"),
+    Scene("town", "stages/town.usda", 5, 300, road_photo=2),
+    Scene("town01", "stages/town01.usda", 7, 1500),
 )
+# Only one scene wears a photo road surface: repeated 2 m windows still show bands across the
+# lane at their period (docs/realism/README.md), a pattern no real road has.
 
 
 def weighted_layout(src: Path, dst: Path, lookalikes: bool) -> Path:
@@ -71,6 +77,19 @@ def weighted_layout(src: Path, dst: Path, lookalikes: bool) -> Path:
     return dst
 
 
+def scene_library(library: Path, dst: Path, shares: int, index: int) -> Path:
+    """Every ``shares``-th asset of the photo library (offset by the scene), linked into ``dst``:
+    each scene gets other real defects, and compose reads a fifth of a large library."""
+    dst.mkdir(parents=True)
+    assets = sorted(p for p in library.glob("*.usda") if not p.name.endswith(".geom.usda"))
+    for asset in assets[index % shares::shares]:
+        for f in (asset, asset.with_name(f"{asset.stem}.geom.usda")):
+            (dst / f.name).symlink_to(f.resolve())
+    if (library / "textures").is_dir():
+        (dst / "textures").symlink_to((library / "textures").resolve())
+    return dst
+
+
 def run(cmd: list[str], log: Path) -> float:
     t0 = time.perf_counter()
     with log.open("a") as f:
@@ -83,7 +102,17 @@ def run(cmd: list[str], log: Path) -> float:
 
 
 def make_scene(scene: Scene, args, out: Path, index: int) -> dict:
+    """Compose (phase compose), render and pack (phase render) one scene; its timings."""
     work = out / "scenes" / scene.name
+    row = {"scene": scene.name}
+    if args.phase in ("compose", "all"):
+        row["compose_s"] = compose_scene(scene, args, work, index)
+    if args.phase in ("render", "all"):
+        row.update(render_scene(scene, args, work, index))
+    return row
+
+
+def compose_scene(scene: Scene, args, work: Path, index: int) -> float:
     if work.exists():
         shutil.rmtree(work)
     work.mkdir(parents=True)
@@ -94,9 +123,22 @@ def make_scene(scene: Scene, args, out: Path, index: int) -> dict:
                "--props", "none" if args.no_props else "default", "--no-preview", "-o", str(work / "town")]
     if scene.surface:
         compose += ["--surface", scene.surface]
+    if args.road_textures:
+        names = [m["name"] for m in json.loads((args.road_textures / "materials.json").read_text())["materials"]]
+        compose += ["--road-textures", str(args.road_textures)]
+        if scene.road_photo is not None and names:
+            compose += ["--road-material", names[scene.road_photo % len(names)]]
     if args.library and not args.no_photo:
-        compose += ["--library", str(args.library)]
-    t_compose = run(compose, log)
+        lib = scene_library(args.library, work / "library", args.library_shares, index)
+        compose += ["--library", str(lib)]
+    return run(compose, log)
+
+
+def render_scene(scene: Scene, args, work: Path, index: int) -> dict:
+    log = work / "log.txt"
+    cli = [sys.executable, "-m", "roadtwin_core.cli"]
+    shutil.rmtree(work / "render", ignore_errors=True)
+    shutil.rmtree(work / "packed", ignore_errors=True)
     render = [*cli, "render", str(work / "town" / "town.usda"), "--rig", "survey", "--views", f"defects:{args.defect_share}:clear",
               "--randomize", "--classmap", "builtin:road_defects_br", "--frames", str(args.frames), "--size", args.size,
               "--seed", str(1000 + index), "--formats", "mmseg", "-o", str(work / "render")]
@@ -109,40 +151,44 @@ def make_scene(scene: Scene, args, out: Path, index: int) -> dict:
     t_render = run(render, log)
     t_pack = run([sys.executable, str(REPO / "bench/perception.py"), "pack", str(work / "render"), str(work / "packed"),
                   "--size", args.size], log)
-    return {"scene": scene.name, "compose_s": t_compose, "render_s": t_render, "frames": args.frames,
-            "frames_per_s": args.frames / t_render, "pack_s": t_pack}
+    return {"render_s": t_render, "frames": args.frames, "frames_per_s": args.frames / t_render, "pack_s": t_pack}
 
 
 def merge(out: Path, names: list[str]) -> int:
-    """The packed scenes as one folder, file names prefixed by the scene."""
+    """The packed scenes into one folder, file names prefixed by the scene (a scene rendered
+    again replaces its own files; other scenes' files stay). Returns the folder's frame count."""
     dst = out / "synthetic"
-    if dst.exists():
-        shutil.rmtree(dst)
-    (dst / "images").mkdir(parents=True)
-    (dst / "labels").mkdir()
-    count = 0
+    (dst / "images").mkdir(parents=True, exist_ok=True)
+    (dst / "labels").mkdir(exist_ok=True)
     for name in names:
+        for old in [*(dst / "images").glob(f"{name}_*"), *(dst / "labels").glob(f"{name}_*")]:
+            old.unlink()
         packed = out / "scenes" / name / "packed"
         for img in sorted((packed / "images").iterdir()):
             shutil.move(str(img), dst / "images" / f"{name}_{img.name}")
             lab = packed / "labels" / f"{img.stem}.png"
             shutil.move(str(lab), dst / "labels" / f"{name}_{lab.name}")
-            count += 1
         if (packed / "classes.json").is_file():
             shutil.copyfile(packed / "classes.json", dst / "classes.json")
-    return count
+    return len(list((dst / "images").iterdir()))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("-o", "--out", type=Path, required=True)
     ap.add_argument("--library", type=Path, help="photo defect library (roadtwin reconstruct photos)")
+    ap.add_argument("--road-textures", type=Path, help="road materials from photos (roadtwin reconstruct photo-surfaces): "
+                    "scenes with a road_photo wear one")
+    ap.add_argument("--library-shares", type=int, default=5, help="scene i composes every N-th library asset (offset i)")
     ap.add_argument("--frames", type=int, default=1000, help="frames per scene")
     ap.add_argument("--size", default="512x320")
-    ap.add_argument("--defect-share", type=float, default=0.5, help="share of views aimed at a defect")
+    ap.add_argument("--defect-share", type=float, default=0.8, help="share of views aimed at a defect (real survey frames were kept for their defects)")
     ap.add_argument("--device", default=None, help="render device (cpu | cuda)")
     ap.add_argument("--workers", type=int, default=None, help="render worker processes")
     ap.add_argument("--scenes", nargs="+", default=[s.name for s in SCENES], choices=[s.name for s in SCENES])
+    ap.add_argument("--phase", choices=("compose", "render", "all"), default="all",
+                    help="compose the scenes, render+pack them, or both (two GPU calls: each under the call limit)")
+    ap.add_argument("--jobs", type=int, default=1, help="scenes at once (each compose/render is its own process)")
     ap.add_argument("--no-lookalikes", action="store_true")
     ap.add_argument("--no-props", action="store_true")
     ap.add_argument("--no-photo", action="store_true")
@@ -150,21 +196,28 @@ def main() -> None:
     console = Console()
     args.out.mkdir(parents=True, exist_ok=True)
     chosen = [s for s in SCENES if s.name in args.scenes]
-    rows = []
-    with console.status("") as status:
-        for i, scene in enumerate(chosen):
-            status.update(f"scene {i + 1}/{len(chosen)}: {scene.name}")
-            rows.append(make_scene(scene, args, args.out, SCENES.index(scene)))
-            console.print(f"{scene.name}: compose {rows[-1]['compose_s']:.0f} s, render {rows[-1]['render_s']:.0f} s "
-                          f"({rows[-1]['frames_per_s']:.1f} frames/s)")
-    total = merge(args.out, [s.name for s in chosen])
-    (args.out / "synthetic_set.json").write_text(json.dumps({"scenes": rows, "frames": total, "args": {
-        k: str(v) for k, v in vars(args).items()}}, indent=1))
-    table = Table(title=f"{total} frames in {args.out / 'synthetic'}")
+    t0 = time.perf_counter()
+    with console.status(f"{len(chosen)} scenes, {args.jobs} at once, phase {args.phase}"), \
+            ThreadPoolExecutor(args.jobs) as pool:
+        rows = list(pool.map(lambda sc: make_scene(sc, args, args.out, SCENES.index(sc)), chosen))
+    wall = time.perf_counter() - t0
+    record = args.out / "synthetic_set.json"
+    old = json.loads(record.read_text()) if record.is_file() else {}
+    by_scene = {r["scene"]: r for r in old.get("scenes", [])}
+    for r in rows:
+        by_scene[r["scene"]] = {**by_scene.get(r["scene"], {}), **r}
+    summary = {"scenes": list(by_scene.values()), f"{args.phase}_wall_s": wall, **{k: v for k, v in old.items() if k.endswith("_wall_s")}}
+    if args.phase in ("render", "all"):
+        summary["frames"] = merge(args.out, [s.name for s in chosen])
+    summary["args_" + args.phase] = {k: str(v) for k, v in vars(args).items()}
+    record.write_text(json.dumps(summary, indent=1))
+    table = Table(title=f"phase {args.phase}: {wall:.0f} s wall, {summary.get('frames', 0)} frames in {args.out / 'synthetic'}")
     for col in ("scene", "compose s", "render s", "frames/s", "pack s"):
         table.add_column(col, justify="right")
-    for r in rows:
-        table.add_row(r["scene"], f"{r['compose_s']:.1f}", f"{r['render_s']:.1f}", f"{r['frames_per_s']:.2f}", f"{r['pack_s']:.1f}")
+    fmt = lambda r, k, f: f.format(r[k]) if k in r else "-"  # noqa: E731
+    for r in summary["scenes"]:
+        table.add_row(r["scene"], fmt(r, "compose_s", "{:.1f}"), fmt(r, "render_s", "{:.1f}"),
+                      fmt(r, "frames_per_s", "{:.2f}"), fmt(r, "pack_s", "{:.1f}"))
     console.print(table)
 
 

@@ -50,7 +50,9 @@ class Reconstructor(Protocol):
     """Sensor data -> a surface or defect models, in two steps so the CLI can report before writing.
 
     ``produces`` is ``"surface"`` (``roadtwin reconstruct surface``) or ``"defects"``
-    (``roadtwin reconstruct defects``, and ``reconstruct photos`` for a photo reconstructor).
+    (``roadtwin reconstruct defects``, and ``reconstruct photos`` for a photo reconstructor) or
+    ``"materials"`` (``roadtwin reconstruct photo-surfaces``: road materials, textures and a
+    ``materials.json`` that ``compose --road-textures`` reads).
     ``inputs`` is a dict whose keys and checks are
     :class:`roadtwin_core.apps.reconstruct.SurfaceInputs`,
     :class:`~roadtwin_core.apps.reconstruct.DefectInputs` and, for photos,
@@ -65,7 +67,7 @@ class Reconstructor(Protocol):
 
     name: str
     description: str
-    produces: Literal["surface", "defects"]
+    produces: Literal["surface", "defects", "materials"]
     Params: type
 
     def run(self, inputs, params) -> Any:
@@ -234,7 +236,7 @@ PROTOCOLS: dict[str, type] = {
     "dataset_formats": DatasetFormat, "sensors": Sensor,
 }
 
-_PRODUCES = ("surface", "defects")
+_PRODUCES = ("surface", "defects", "materials")
 _MESSAGES = ("imu", "gnss", "image", "stereo", "points")  # what a sensor's samples are (Sensor.message)
 
 

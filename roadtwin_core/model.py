@@ -370,11 +370,36 @@ class LaneMarking:
 
 
 @dataclass
+class MapObject:
+    """A thing a map places beside (or on) its roads: an OpenDRIVE ``<object>`` or ``<signal>``.
+
+    ``kind`` "object" or "signal"; ``type``/``subtype`` as the map writes them (OpenDRIVE object
+    types: pole, tree, vegetation, barrier, car ...; a signal's country code type); ``position``
+    world (x, y, z), z = road elevation + the map's zOffset; ``hpr`` world heading, pitch, roll
+    (rad) of the object's +X (a signal: the direction its face looks); ``size`` (length, width,
+    height) in metres, 0 where the map gives none; ``dynamic``: a signal that changes (a traffic
+    light). Compose turns them into props (docs/architecture.md, USD conventions).
+    """
+
+    id: str
+    kind: str
+    type: str
+    position: tuple[float, float, float]
+    hpr: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    size: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    subtype: str = ""
+    name: str = ""
+    road: str = ""
+    dynamic: bool = False
+
+
+@dataclass
 class TownLayout:
     """Road segments plus the composition rules and where they came from.
 
     ``terrain`` holds optional (N,3) world elevation samples (the k-d tree elevation source),
     ``fixed`` the defects the layout pins in place, ``markings`` the painted lane markings,
+    ``objects`` the map's roadside objects and signs (:class:`MapObject`),
     ``metadata`` free-form strings carried to the
     town stage (geo-reference, attribution, default route ...).
     """
@@ -387,6 +412,7 @@ class TownLayout:
     fixed: list[FixedDefect] = field(default_factory=list)
     metadata: dict[str, str] = field(default_factory=dict)
     markings: list[LaneMarking] = field(default_factory=list)
+    objects: list[MapObject] = field(default_factory=list)
 
     def segment(self, segment_id: str) -> RoadSegment:
         for s in self.segments:

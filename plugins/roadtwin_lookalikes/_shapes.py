@@ -10,6 +10,7 @@ buffered by half its width: tyre marks, sealed cracks, patch seams) and rectangl
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
@@ -43,12 +44,39 @@ def walk(rng: np.random.Generator, length_m: float, step_m: float, tortuosity: f
     return p - 0.5 * (p.min(axis=0) + p.max(axis=0))
 
 
+def rectangle(length_m: float, width_m: float) -> np.ndarray:
+    """CCW corners of a ``length_m`` x ``width_m`` rectangle centred on the origin, from (+x, -y)."""
+    a, b = length_m / 2, width_m / 2
+    return np.array([[a, -b], [a, b], [-a, b], [-a, -b]])
+
+
 def band(line: np.ndarray, width_m: float) -> np.ndarray:
     """Outline of a polyline buffered by half ``width_m`` with flat ends (a band, not a sausage)."""
     poly = LineString(line).buffer(width_m / 2, quad_segs=2, cap_style="flat", join_style="mitre", mitre_limit=2.0)
     if not isinstance(poly, Polygon) or len(poly.interiors):
         raise RoadtwinError("look-alike band did not buffer to one simple polygon (internal error)")
     return np.asarray(poly.exterior.coords)[:-1]
+
+
+@dataclass
+class Footprint:
+    """A look-alike's outline and how to mesh it: ``spacing_m`` (clipped to 1-5 cm: fine enough for
+    a 3 cm band, coarse enough for a 3 m wet patch), film ``height_m`` reached over ``bevel_m``."""
+
+    outline: np.ndarray
+    spacing_m: float
+    height_m: float
+    bevel_m: float
+
+    def model(self, name: str, kind: str, params) -> DefectModel:
+        spacing = float(np.clip(self.spacing_m, 0.01, 0.05))
+        return flush_model(name, kind, params, self.outline, spacing, self.height_m, bevel_m=self.bevel_m)
+
+
+def band_footprint(line: np.ndarray, width_m: float, height_m: float) -> Footprint:
+    """A band (tyre mark, sealed crack, patch seam): meshed at two thirds of its width, bevelled
+    over a quarter of its width (at most 1 cm) so a narrow band still reaches its height."""
+    return Footprint(band(line, width_m), width_m / 1.5, height_m, bevel_m=min(0.01, width_m / 4))
 
 
 def flush_model(name: str, kind: str, params, outline: np.ndarray, spacing_m: float,

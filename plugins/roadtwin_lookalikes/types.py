@@ -12,6 +12,10 @@ merges and binds it the same way. Two optional attributes tell the core what it 
 Sizes are what a survey camera sees on Brazilian two-lane highways: drips and stains 0.2-1.5 m,
 tar-sealed crack bands 3-8 cm wide, skid marks 15-30 cm wide and metres long, paint dashes
 10-20 cm x 1-4 m.
+
+Every type shares one ``generate`` (check the parameters, draw a footprint, mesh it flush, see
+``_shapes.flush_model``); a family differs only in its ``Params`` and its ``_footprint``. A
+subclass tunes its family through class attributes (sample ranges, film height).
 """
 from __future__ import annotations
 
@@ -21,18 +25,30 @@ import numpy as np
 
 from roadtwin_core import RoadtwinError, check_params, field
 
-from ._shapes import band, blob, flush_model, walk
+from ._shapes import Footprint, band_footprint, blob, rectangle, walk
 
 SEMANTIC_CLASS = "road_lookalike"
 
 
-class _Blob:
-    """Irregular blob footprint (stains, water, debris)."""
+class _LookAlike:
+    """What every look-alike type shares: it labels itself road, and meshes its footprint flush."""
 
     name = ""
     description = ""
     semantic_class = SEMANTIC_CLASS
     along_travel = False
+
+    def _footprint(self, p, rng: np.random.Generator) -> Footprint:
+        raise NotImplementedError
+
+    def generate(self, params, rng: np.random.Generator, name: str):
+        p = check_params(params, f"look-alike type {self.name}")
+        return self._footprint(p, rng).model(name, self.name, p)
+
+
+class _Blob(_LookAlike):
+    """Irregular blob footprint (stains, water, debris)."""
+
     _size = (0.2, 1.5)
     _rough = (0.3, 0.8)
     _height = 0.0
@@ -49,11 +65,9 @@ class _Blob:
         return self.Params(length_m=length, width_m=length * rng.uniform(0.45, 1.0),
                            roughness=rng.uniform(*self._rough), height_m=self._height)
 
-    def generate(self, params, rng: np.random.Generator, name: str):
-        p = check_params(params, f"look-alike type {self.name}")
-        spacing = float(np.clip(min(p.length_m, p.width_m) / 12, 0.01, 0.05))
-        outline = blob(rng, p.length_m, p.width_m, p.roughness)
-        return flush_model(name, self.name, p, outline, spacing, p.height_m, bevel_m=0.02)
+    def _footprint(self, p, rng: np.random.Generator) -> Footprint:
+        return Footprint(blob(rng, p.length_m, p.width_m, p.roughness), min(p.length_m, p.width_m) / 12,
+                         p.height_m, bevel_m=0.02)
 
 
 class OilStain(_Blob):
@@ -90,13 +104,9 @@ class Debris(_Blob):
     _height = 0.002
 
 
-class _Band:
+class _Band(_LookAlike):
     """A polyline band (tyre marks, tar-sealed cracks)."""
 
-    name = ""
-    description = ""
-    semantic_class = SEMANTIC_CLASS
-    along_travel = False
     _length = (0.8, 4.0)
     _width = (0.03, 0.08)
     _step = 0.15
@@ -114,15 +124,11 @@ class _Band:
         return self.Params(length_m=rng.uniform(*self._length), width_m=rng.uniform(*self._width),
                            tortuosity=rng.uniform(*self._tortuosity), height_m=self._height)
 
-    def generate(self, params, rng: np.random.Generator, name: str):
-        p = check_params(params, f"look-alike type {self.name}")
+    def _footprint(self, p, rng: np.random.Generator) -> Footprint:
         if p.width_m > p.length_m / 2:
             raise RoadtwinError(f"look-alike type {self.name}: parameter width_m ({p.width_m}) must be <= length_m / 2")
-        step = max(self._step, 2.5 * p.width_m)
-        line = walk(rng, p.length_m, step, p.tortuosity)
-        spacing = float(np.clip(p.width_m / 1.5, 0.01, 0.05))
-        return flush_model(name, self.name, p, band(line, p.width_m), spacing, p.height_m,
-                           bevel_m=min(0.01, p.width_m / 4))
+        line = walk(rng, p.length_m, max(self._step, 2.5 * p.width_m), p.tortuosity)
+        return band_footprint(line, p.width_m, p.height_m)
 
 
 class SealedCrack(_Band):
@@ -141,13 +147,12 @@ class TyreMark(_Band):
     _height = 0.0
 
 
-class PatchSeam:
+class PatchSeam(_LookAlike):
     """The tar-sealed joint around a repair: three or two sides of a rectangle, or one straight
     joint (a footprint may not enclose road, so never all four sides)."""
 
     name = "patch_seam"
     description = "Look-alike: tar-sealed joint of a repair or lane seam (C, L or straight band), ~1 mm proud."
-    semantic_class = SEMANTIC_CLASS
     along_travel = True
 
     @dataclass
@@ -162,23 +167,18 @@ class PatchSeam:
         return self.Params(length_m=rng.uniform(0.6, 3.5), width_m=rng.uniform(0.5, 2.5),
                            sides=int(rng.integers(1, 4)), band_m=rng.uniform(0.02, 0.06), height_m=0.001)
 
-    def generate(self, params, rng: np.random.Generator, name: str):
-        p = check_params(params, f"look-alike type {self.name}")
-        a, b = p.length_m / 2, p.width_m / 2
-        corners = {1: [(-a, -b), (a, -b)], 2: [(-a, b), (-a, -b), (a, -b)],
-                   3: [(a, b), (-a, b), (-a, -b), (a, -b)]}[int(p.sides)]
-        spacing = float(np.clip(p.band_m / 1.5, 0.01, 0.05))
-        return flush_model(name, self.name, p, band(np.asarray(corners, float), p.band_m), spacing, p.height_m,
-                           bevel_m=min(0.01, p.band_m / 4))
+    def _footprint(self, p, rng: np.random.Generator) -> Footprint:
+        # the repair's corners counter-clockwise from (+x, +y); a seam of n sides runs through the last n + 1
+        corners = np.roll(rectangle(p.length_m, p.width_m), -1, axis=0)
+        return band_footprint(corners[3 - int(p.sides):], p.band_m, p.height_m)
 
 
-class WornPaint:
+class WornPaint(_LookAlike):
     """A lane-paint dash worn through to the asphalt, or one removed by grinding (ghost paint):
     where the old markings were before a re-striping, a paler, smoother rectangle."""
 
     name = "worn_paint"
     description = "Look-alike: a worn-through paint dash (patchy white on asphalt), ~1 mm proud."
-    semantic_class = SEMANTIC_CLASS
     along_travel = True
     _height = 0.001
 
@@ -191,12 +191,9 @@ class WornPaint:
     def sample_params(self, rng: np.random.Generator):
         return self.Params(length_m=rng.uniform(0.8, 4.0), width_m=rng.uniform(0.1, 0.2), height_m=self._height)
 
-    def generate(self, params, rng: np.random.Generator, name: str):
-        p = check_params(params, f"look-alike type {self.name}")
-        a, b = p.length_m / 2, p.width_m / 2
-        rect = np.array([[a, -b], [a, b], [-a, b], [-a, -b]])
-        return flush_model(name, self.name, p, rect, float(np.clip(p.width_m / 3, 0.01, 0.05)), p.height_m,
-                           bevel_m=min(0.01, p.width_m / 4))
+    def _footprint(self, p, rng: np.random.Generator) -> Footprint:
+        return Footprint(rectangle(p.length_m, p.width_m), p.width_m / 3, p.height_m,
+                         bevel_m=min(0.01, p.width_m / 4))
 
 
 class GhostPaint(WornPaint):

@@ -2,7 +2,8 @@
 
 Only what the importer needs is read: header, roads (planView, elevationProfile,
 lateralProfile/superelevation, lanes/laneOffset, laneSection left/center/right lanes with their
-width and roadMark records, a roadMark's optional ``<type>`` line definitions) and junction ids.
+width and roadMark records, a roadMark's optional ``<type>`` line definitions), the road's objects
+and signals (:mod:`roadtwin_opendrive._objects_xml`) and junction ids.
 Every problem becomes one :class:`RoadtwinError` line naming the file and, where there is one,
 the road id; nothing is skipped silently.
 """
@@ -15,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from roadtwin_core import RoadtwinError
+
+from ._objects_xml import ObjectRecord, read_road_objects
 
 # Sanity bounds (m): coordinates of projected maps reach ~1e7 m (UTM northings); a road longer
 # than 1000 km or a lane wider than 100 m is a corrupt file, and such values overflow the
@@ -107,6 +110,7 @@ class Road:
     superelevation: list[Cubic]
     lane_offset: list[Cubic]
     sections: list[LaneSection]
+    objects: list[ObjectRecord] = field(default_factory=list)   # <objects> and <signals>, file order
 
 
 @dataclass
@@ -300,7 +304,7 @@ def _read_road(rd: _Reader, el: ET.Element, rid: str) -> Road:
     return Road(rid, el.get("name", ""), length, junction, geoms,
                 rd.cubics(_child(el, "elevationProfile"), "elevation", where),
                 rd.cubics(_child(el, "lateralProfile"), "superelevation", where),
-                rd.cubics(lanes_el, "laneOffset", where), sections)
+                rd.cubics(lanes_el, "laneOffset", where), sections, read_road_objects(rd, el, where, length))
 
 
 def _check_coverage(rd: _Reader, where: str, geoms: list[Geometry], length: float) -> None:

@@ -46,10 +46,14 @@ What a layout gets from a map:
   this) both carry their centre line, so such a line is there twice, on the same points.
   Id ``r<road>_ls<k>_<c0|lane tag>_<j>`` (k, j: lane section and mark where the curve starts).
 
+- Objects and signals: every road's ``<object>``s (with their ``<repeat>``s) and ``<signal>``s
+  become :class:`MapObject`s in ``layout.objects``, posed in the world frame by the road's
+  reference line (:mod:`roadtwin_opendrive._objects`); compose turns them into props.
+
 Supported: geometry line / arc / spiral / poly3 / paramPoly3, elevationProfile, superelevation,
 laneOffset, lane sections with width records, road marks (not their ``<sway>`` or
-``<explicit>`` geometry). Not supported (refused with a clear message): lane <border> records.
-Ignored: objects, signals, lane heights, crossfall, shapes.
+``<explicit>`` geometry), objects and signals (not their outlines). Not supported (refused with a
+clear message): lane <border> records. Ignored: lane heights, crossfall, shapes, object outlines.
 """
 from __future__ import annotations
 
@@ -68,6 +72,7 @@ from roadtwin_core import (ComposeRules, LaneMarking, RoadSegment, RoadtwinError
 from roadtwin_core.usd import safe_prim_name
 
 from ._marks import MarkStyle, mark_style
+from ._objects import road_objects
 from ._refline import ReferenceLine, eval_cubics
 from ._xodr import OpenDriveFile, Road, read_xodr
 
@@ -305,6 +310,7 @@ class _Builder:
         self.road_tags: dict[str, str] = {}
         self.n_sections = 0
         self.marks: list[_MarkPiece] = []
+        self.objects: list = []
 
     def fail(self, road: Road, message: str) -> RoadtwinError:
         return RoadtwinError(f"{self.name}: road {road.id}: {message}")
@@ -381,6 +387,7 @@ class _Builder:
         if in_junction:
             self.junction_roads.setdefault(road.junction, []).append(road.id)
         open_marks: dict[int, _MarkPiece] = {}  # lane id -> its last mark piece on this road
+        self.objects += road_objects(road, ref)
         for sec in self.sections(road, ref):
             self.n_sections += 1
             self.add_terrain(sec)
@@ -535,7 +542,7 @@ class _Builder:
             except RoadtwinError as exc:
                 raise RoadtwinError(f"{self.name}: road {piece.road}: lane {piece.lane} road mark {piece.id}: "
                                    f"{str(exc).split(': ', 1)[-1]}") from None
-        layout = TownLayout(name, self.segments, rules, str(odr.path), terrain, [], meta, markings)
+        layout = TownLayout(name, self.segments, rules, str(odr.path), terrain, [], meta, markings, self.objects)
         return OpenDriveNetwork(layout, len(odr.roads), len(odr.junctions), self.centerlines, self.n_sections)
 
 

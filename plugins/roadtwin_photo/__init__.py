@@ -41,6 +41,8 @@ from roadtwin_core import DefectLook, DefectModel, RoadtwinError, check_params, 
 from roadtwin_core.atomic import atomic_output_dir
 from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
+from .lane_rig import rig_from_lanes
+from .photo_io import frame_pairs, license_for, read_label, read_rgb, rig_from
 from .patch import Patch, PatchParams, instance_seed, make_patch
 from .rectify import OrthoGrid, PhotoRig, grid_around, pixel_ground_area, rectify
 from .surfaces import PhotoSurfaces
@@ -62,6 +64,10 @@ class PhotoDefectsParams:
     max_depth_m: float = field(0.10, lo=0.0, hi=0.5, doc="pothole depth prior, upper clip (m)")
     wall_ratio: float = field(0.35, lo=0.01, hi=2.0, doc="pothole wall width / equivalent radius")
     ravel: float = field(0.35, lo=0.0, hi=1.0, doc="relative amplitude of the ravelled wall noise")
+    lane_width_m: float = field(0.0, lo=0.0, hi=10.0, doc="> 0: each frame's camera pitch and height from its "
+                                "lane lines (the class map's lane class, this wide in m; lane_rig.py), for photos "
+                                "whose rig is not known per frame; a frame whose lane edges are not straight keeps "
+                                "the rig. 0: the rig for every frame")
     road_albedo: float = field(0.12, lo=0.0, hi=1.0, doc="linear luminance the road around a defect is scaled to, "
                                "so the patch is an albedo like the town's asphalt (asphalt_worn: 0.12); 0 keeps the "
                                "photo's exposure")
@@ -98,40 +104,6 @@ class PhotoResult:
         return [i.model for i in self.instances]
 
 
-def _license_for(image: Path) -> str:
-    for d in [image.parent, *list(image.parents)[1:4]]:
-        for name in ("LICENSE", "LICENSE.txt", "LICENSE.md", "COPYING"):
-            f = d / name
-            if f.is_file():
-                try:
-                    first = next((ln.strip() for ln in f.read_text(errors="replace").splitlines() if ln.strip()), "")
-                except OSError:
-                    continue
-                return f"{first or 'license'} ({f})"
-    return "unknown (no LICENSE file beside the frame)"
-
-
-def _read_rgb(path: Path) -> np.ndarray:
-    import cv2
-
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise RoadtwinError(f"{path}: cannot read the image")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
-
-
-def _read_label(path: Path) -> np.ndarray:
-    import cv2
-
-    lab = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if lab is None:
-        raise RoadtwinError(f"{path}: cannot read the label")
-    if lab.ndim != 2:
-        raise RoadtwinError(f"{path}: a label holds one class id per pixel (a single-channel PNG), got {lab.shape[2]} "
-                            "channels")
-    return lab
-
-
 def _components(mask: np.ndarray, join_px: int):
     """The 8-connected components of a class mask: ((x0, y0, width, height, pixels), the
     component's mask inside that box). ``join_px`` > 1 first closes gaps that narrow (crack
@@ -145,17 +117,6 @@ def _components(mask: np.ndarray, join_px: int):
     for c in range(1, n):
         x0, y0, bw, bh, npx = (int(v) for v in stats[c])
         yield (x0, y0, bw, bh, npx), comp[y0:y0 + bh, x0:x0 + bw] == c
-
-
-def _rig(value: Any) -> PhotoRig:
-    if isinstance(value, PhotoRig):
-        return value
-    if isinstance(value, dict):
-        try:
-            return PhotoRig(**value)
-        except TypeError as exc:
-            raise RoadtwinError(f"rig: {exc}") from None
-    raise RoadtwinError(f"rig: expected a PhotoRig or its fields, got {type(value).__name__}")
 
 
 class PhotoDefects:
@@ -173,7 +134,8 @@ class PhotoDefects:
         out: list[PhotoInstance] = []
         skipped: list[dict] = []
         for img, lab in pairs:
-            out += self._frame(img, lab, classes, rig, p, pp, inputs.get("license") or _license_for(img), names, skipped)
+            out += self._frame(img, lab, classes, rig, p, pp, inputs.get("license") or license_for(img), names, skipped,
+                               inputs.get("lane_classes") or {})
         if not out:
             raise RoadtwinError(f"no defect instance of at least {p.min_pixels} px in the labels of {len(pairs)} "
                                 f"frame(s) (classes {', '.join(v[0] for v in classes.values())}): nothing to write")
@@ -185,38 +147,31 @@ class PhotoDefects:
         p = check_params(params or PhotoDefectsParams(), self.name)
         if p.min_depth_m > p.max_depth_m:
             raise RoadtwinError(f"{self.name}: min_depth_m {p.min_depth_m} > max_depth_m {p.max_depth_m}")
-        rig = PhotoRig(**{**asdict(_rig(inputs.get("rig"))), "max_range_m": p.max_range_m})
+        rig = PhotoRig(**{**asdict(rig_from(inputs.get("rig"))), "max_range_m": p.max_range_m})
         classes = {int(k): tuple(v) for k, v in (inputs.get("classes") or {}).items()}
         if not classes:
             raise RoadtwinError(f"{inputs.get('classmap_source', 'class map')}: no defect class (no class is filled "
                                 "from a roadtwin defect type such as pothole or crack): nothing to reconstruct")
-        images = [Path(x) for x in inputs.get("images") or []]
-        if not images:
-            raise RoadtwinError(f"{self.name}: no images given")
-        labels_dir = Path(inputs["labels"]) if inputs.get("labels") is not None else None
-        if labels_dir is None or not labels_dir.is_dir():
-            raise RoadtwinError(f"{labels_dir}: label folder not found")
-        pairs = []
-        for img in images:
-            if not img.is_file():
-                raise RoadtwinError(f"{img}: no such image")
-            lab = labels_dir / f"{img.stem}.png"
-            if not lab.is_file():
-                raise RoadtwinError(f"{img}: no label {lab} (each image needs its label, same stem, .png)")
-            pairs.append((img, lab))
+        if p.lane_width_m > 0 and not inputs.get("lane_classes"):
+            raise RoadtwinError(f"{inputs.get('classmap_source', 'class map')}: lane_width_m needs a lane class in "
+                                "the class map (the class plain road inside the ego lane maps to)")
+        pairs = frame_pairs(inputs)
         return p, rig, classes, pairs
 
     def _frame(self, img: Path, lab: Path, classes: dict, rig: PhotoRig, p: PhotoDefectsParams, pp: PatchParams,
-               license_text: str, names: set[str], skipped: list[dict]) -> list[PhotoInstance]:
+               license_text: str, names: set[str], skipped: list[dict], lane_classes: dict) -> list[PhotoInstance]:
         """One photo's instances, numbered 1.. per photo over its classes; those too small to keep
         go to ``skipped``. A labelled pixel whose ray misses the road is an error even when its
         instance would be skipped (a bad rig should not pass silently)."""
-        rgb = _read_rgb(img)
-        label = _read_label(lab)
+        rgb = read_rgb(img)
+        label = read_label(lab)
         if label.shape != rgb.shape[:2]:
             raise RoadtwinError(f"{lab}: label is {label.shape[1]}x{label.shape[0]} px, its image {img} is "
                                 f"{rgb.shape[1]}x{rgb.shape[0]}")
         h, w = label.shape
+        if p.lane_width_m > 0:
+            lane = np.isin(label, [int(k) for k in lane_classes])
+            rig = rig_from_lanes(lane, rig, p.lane_width_m) or rig
         stem = safe_prim_name(img.stem, empty="frame", lead="f")
         out: list[PhotoInstance] = []
         for cid in sorted(classes):

@@ -12,7 +12,9 @@ vectorised over times; ``velocity_at(t)``; ``imu_truth(offset, t0, t1)``: mean s
 body rate at a body point); ``world`` the services of the scene (``render(cameras)`` through the
 drive's renderer plugin, ``cast(origins, dirs)`` -> ``{"t", "class_id", "instance"}``,
 ``class_names``). Built-ins: ``imu``, ``gnss``, ``camera``, ``stereo``, ``lidar``. numpy only
-(open3d for the stand-alone scan simulator in :mod:`.scan_patterns`).
+(opencv for the cameras' motion blur, open3d for the stand-alone scan simulator in
+:mod:`.scan_patterns`). What they share (the mount, the registered type, the LiDAR's returns)
+is in :mod:`._mount`.
 
 Also here, as a sensor model: the Livox rosette scan simulator over a known mesh
 (:func:`simulate_scans`, :class:`RosetteScanner`, :func:`path_poses`; the LiDAR reconstructor's

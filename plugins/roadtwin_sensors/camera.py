@@ -1,10 +1,14 @@
 """Cameras (mono and a rectified stereo pair) rendered through the renderer the drive uses.
 
-Exposure-time motion blur from the body's real motion: the frame is the mean of sub-frames
-rendered at the camera's poses across the exposure (stamped at its middle), as many as the
-image moves pixels during it (the centre ray's and the image corners' motion, at most
-``max_subframes``); labels, depth and instance ids are the middle sub-frame's (odd counts).
-Sensor noise: Gaussian read noise on the tone-mapped 8-bit image.
+Exposure-time motion blur from the body's real motion: the frame is the mean of the images at
+the camera's poses across the exposure (stamped at its middle), as many sub-frames as the image
+moves pixels during it (the centre ray's and the image corners' motion, at most
+``max_subframes``). ``blur = "reproject"`` (default) renders the middle sub-frame only (a pair
+as two mono views) and moves it to each other sub-frame's pose through its own depth (the velocity-buffer blur of real-time
+graphics: exact for a static scene but at occlusion edges, where a few pixels of motion reveal
+what the middle frame hides): one render a frame instead of one a sub-frame, the renderer being
+the drive's cost. ``blur = "render"`` renders every sub-frame. Labels, depth and instance ids are
+the middle sub-frame's (odd counts). Sensor noise: Gaussian read noise on the tone-mapped image.
 """
 from __future__ import annotations
 
@@ -16,7 +20,9 @@ import numpy as np
 from roadtwin_core import RoadtwinError, field
 from roadtwin_core.render import Camera, Intrinsics, StereoCamera, to_srgb8
 
-from ._mount import OPTICAL_IN_LINK
+from ._mount import OPTICAL_IN_LINK, MountedSensor, SensorType
+
+FAR_M = 1.0e4          # where pixels that hit nothing (sky) are put for the blur: they move with the rotation only
 
 
 @dataclass
@@ -28,25 +34,27 @@ class CameraParams:
     max_subframes: int = field(7, lo=1, hi=31, doc="most sub-frames averaged for motion blur")
     read_noise: float = field(1.0, lo=0.0, hi=50.0, doc="Gaussian noise on the 8-bit image, DN (1 sigma)")
     baseline_m: float = field(0.12, lo=0.01, hi=5.0, doc="stereo baseline, m (stereo only)")
+    blur: str = field("reproject", doc="motion blur: reproject (render the middle sub-frame, move it through its "
+                                       "depth) | render (render every sub-frame)")
     seed: int = field(0, lo=0, doc="noise seed (combined with the sensor's name)")
 
 
-class CameraSensor:
-    kind = "camera"
+class CameraSensor(MountedSensor):
     message = "image"
 
     def __init__(self, sensor_id, rate_hz, extrinsic, params: CameraParams, stereo: bool = False) -> None:
-        self.id, self.rate_hz, self.extrinsic, self.params = sensor_id, float(rate_hz), np.asarray(extrinsic), params
+        super().__init__(sensor_id, rate_hz, extrinsic, params)
         if params.exposure_s > 1.0 / self.rate_hz:
             raise RoadtwinError(f"sensor {sensor_id}: exposure {params.exposure_s} s is longer than the frame period "
                                 f"{1.0 / self.rate_hz:.4f} s")
+        if params.blur not in ("reproject", "render"):
+            raise RoadtwinError(f"sensor {sensor_id}: blur must be reproject or render, got {params.blur!r}")
         self.stereo = stereo
         self.message = "stereo" if stereo else "image"
         self.intrinsics = Intrinsics.from_fov(int(params.width), int(params.height), params.hfov_deg)
         self.optical = np.eye(4)                    # optical frame in the body
         self.optical[:3, :3] = self.extrinsic[:3, :3] @ OPTICAL_IN_LINK
         self.optical[:3, 3] = self.extrinsic[:3, 3]
-        self.rng = np.random.default_rng([params.seed, *sensor_id.encode()])
 
     def camera_at(self, state, t: float) -> Camera:
         return Camera(self.intrinsics, state.pose_at(t) @ self.optical)
@@ -73,14 +81,25 @@ class CameraSensor:
         times = self._subframes(state)
         cams = [self.camera_at(state, t) for t in times]
         views = [StereoCamera(c, p.baseline_m) for c in cams] if self.stereo else cams
-        frames = list(world.render(views))
-        mid = frames[len(frames) // 2]
-        out = {"t": state.t, "intrinsics": self.intrinsics, "subframes": len(frames), "exposure_s": p.exposure_s,
+        mid_k = len(cams) // 2
+        if p.blur == "render":
+            frames = list(world.render(views))
+            mid = frames[mid_k]
+            left = [f.rgb for f in frames]
+            right = [f.rgb_right for f in frames] if self.stereo else None
+        else:
+            # the pair as two mono views: each eye's own depth moves it, and the renderer skips the
+            # stereo occlusion pass that nobody here reads
+            eyes = list(world.render([cams[mid_k], views[mid_k].right] if self.stereo else [cams[mid_k]]))
+            mid = eyes[0]
+            left = reproject_blur(mid.rgb, mid.depth, cams[mid_k], cams)
+            right = reproject_blur(eyes[1].rgb, eyes[1].depth, views[mid_k].right, [v.right for v in views]) \
+                if self.stereo else None
+        out = {"t": state.t, "intrinsics": self.intrinsics, "subframes": len(cams), "exposure_s": p.exposure_s,
                "cam_to_world": mid.camera.cam_to_world, "semantic": mid.semantic, "instance": mid.instance,
-               "depth": mid.depth}
-        out["rgb"] = self._develop([f.rgb for f in frames])
+               "depth": mid.depth, "rgb": self._develop(left)}
         if self.stereo:
-            out["rgb_right"] = self._develop([f.rgb_right for f in frames])
+            out["rgb_right"] = self._develop(right)
             out["baseline_m"] = p.baseline_m
         return out
 
@@ -91,21 +110,50 @@ class CameraSensor:
         return np.clip(np.round(img), 0, 255).astype(np.uint8)
 
 
-class MonoCamera:
+def reproject_blur(rgb: np.ndarray, depth: np.ndarray, mid: Camera, cams: list[Camera]) -> list[np.ndarray]:
+    """``rgb`` (the view of camera ``mid``, z-depth ``depth``) as each of ``cams`` sees it: pixel
+    q of camera c looks at the point that its ray meets at the middle frame's depth of q, and takes
+    the middle image's colour where that point projects (bilinear). The depth of q in c is the
+    middle frame's: right for the few pixels that a blur moves, but at occlusion edges."""
+    try:
+        import cv2
+    except ImportError as exc:
+        raise RoadtwinError(f"camera motion blur: reproject needs opencv ({exc}); or set blur = \"render\"") from None
+    k = mid.intrinsics
+    z = np.where(np.isfinite(depth) & (depth > 0), depth, FAR_M).astype(np.float32)
+    u = np.arange(k.width, dtype=np.float32)[None, :]
+    v = np.arange(k.height, dtype=np.float32)[:, None]
+    x, y = (u - np.float32(k.cx)) / np.float32(k.fx) * z, (v - np.float32(k.cy)) / np.float32(k.fy) * z
+    src = np.ascontiguousarray(rgb, dtype=np.float32)
+    out = []
+    for c in cams:
+        if np.array_equal(c.cam_to_world, mid.cam_to_world):
+            out.append(src)
+            continue
+        # camera c's point -> world -> the middle camera's frame: one rigid transform
+        rel = (np.linalg.inv(mid.cam_to_world) @ c.cam_to_world).astype(np.float32)
+        xm, ym, zm = (rel[i, 0] * x + rel[i, 1] * y + rel[i, 2] * z + rel[i, 3] for i in range(3))
+        ahead = zm > 1e-6
+        zm = np.where(ahead, zm, np.float32(1.0))
+        map_x = np.where(ahead, np.float32(k.fx) * xm / zm + np.float32(k.cx), np.float32(-1.0))
+        map_y = np.where(ahead, np.float32(k.fy) * ym / zm + np.float32(k.cy), np.float32(-1.0))
+        out.append(cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+    return out
+
+
+class MonoCamera(SensorType):
     name = "camera"
-    description = "pinhole camera through the drive's renderer: exposure-time motion blur from the body's motion, read noise, labels/depth/instances"
+    description = ("pinhole camera through the drive's renderer: exposure-time motion blur from the body's motion, "
+                   "read noise, labels/depth/instances")
     Params = CameraParams
     message = "image"
-
-    def create(self, sensor_id, rate_hz, extrinsic, params):
-        return CameraSensor(sensor_id, rate_hz, extrinsic, params)
+    sensor_class = CameraSensor
 
 
-class StereoPair:
+class StereoPair(SensorType):
     name = "stereo"
     description = "rectified stereo pair (left mounted, right baseline_m along its x axis), motion blur like camera"
     Params = CameraParams
     message = "stereo"
-
-    def create(self, sensor_id, rate_hz, extrinsic, params):
-        return CameraSensor(sensor_id, rate_hz, extrinsic, params, stereo=True)
+    sensor_class = CameraSensor
+    options = {"stereo": True}

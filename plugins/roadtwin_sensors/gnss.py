@@ -16,6 +16,8 @@ import numpy as np
 
 from roadtwin_core import RoadtwinError, field
 
+from ._mount import MountedSensor, SensorType
+
 A_WGS84, E2_WGS84 = 6378137.0, 6.69437999014e-3
 
 
@@ -42,15 +44,14 @@ def enu_to_geodetic(enu: np.ndarray, lat0: float, lon0: float, alt0: float) -> t
             alt0 + u)
 
 
-class GnssSensor:
+class GnssSensor(MountedSensor):
     kind = "gnss"
     message = "gnss"
 
     def __init__(self, sensor_id, rate_hz, extrinsic, params: GnssParams) -> None:
         if params.mode not in ("rtk", "sps"):
             raise RoadtwinError(f"sensor {sensor_id}: gnss mode must be rtk or sps, got {params.mode!r}")
-        self.id, self.rate_hz, self.extrinsic, self.params = sensor_id, float(rate_hz), np.asarray(extrinsic), params
-        self.rng = np.random.default_rng([params.seed, *sensor_id.encode()])
+        super().__init__(sensor_id, rate_hz, extrinsic, params)
         cep = params.rtk_cep_m if params.mode == "rtk" else params.sps_cep_m
         sh = cep / 1.1774
         self.sigma = np.array([sh, sh, sh * (1.5 if params.mode == "rtk" else 2.0)])
@@ -72,11 +73,9 @@ class GnssSensor:
                 "status": 2 if p.mode == "rtk" else 0, "truth": {"enu": true}}
 
 
-class Gnss:
+class Gnss(SensorType):
     name = "gnss"
     description = "GNSS antenna position (WGS84) with RTK-fixed or standalone errors (Gauss-Markov; u-blox ZED-F9P figures)"
     Params = GnssParams
     message = "gnss"
-
-    def create(self, sensor_id, rate_hz, extrinsic, params):
-        return GnssSensor(sensor_id, rate_hz, extrinsic, params)
+    sensor_class = GnssSensor

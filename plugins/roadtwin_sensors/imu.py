@@ -22,7 +22,7 @@ import numpy as np
 
 from roadtwin_core import field
 
-from ._mount import quat_xyzw
+from ._mount import MountedSensor, SensorType, quat_xyzw
 
 G = 9.80665
 
@@ -45,13 +45,12 @@ class ImuParams:
     seed: int = field(0, lo=0, doc="noise seed (combined with the sensor's name)")
 
 
-class ImuSensor:
+class ImuSensor(MountedSensor):
     kind = "imu"
     message = "imu"
 
     def __init__(self, sensor_id: str, rate_hz: float, extrinsic: np.ndarray, params: ImuParams) -> None:
-        self.id, self.rate_hz, self.extrinsic, self.params = sensor_id, float(rate_hz), np.asarray(extrinsic), params
-        self.rng = np.random.default_rng([params.seed, *sensor_id.encode()])
+        super().__init__(sensor_id, rate_hz, extrinsic, params)
         self.bias_a = self.rng.normal(0.0, params.accel_bias_sigma, 3)
         self.bias_g = self.rng.normal(0.0, params.gyro_bias_sigma, 3)
 
@@ -70,11 +69,9 @@ class ImuSensor:
                 "truth": {"specific_force": f_s, "rate": w_s}}
 
 
-class Imu:
+class Imu(SensorType):
     name = "imu"
     description = "IMU: specific force + body rate at the mount, white noise, turn-on bias, bias random walk (BMI088 defaults)"
     Params = ImuParams
     message = "imu"
-
-    def create(self, sensor_id, rate_hz, extrinsic, params):
-        return ImuSensor(sensor_id, rate_hz, extrinsic, params)
+    sensor_class = ImuSensor

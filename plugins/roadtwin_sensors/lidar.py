@@ -16,7 +16,8 @@ import numpy as np
 
 from roadtwin_core import RoadtwinError, field
 
-from .scan_patterns import mid360_directions, rosette_directions
+from ._mount import MountedSensor, SensorType, returns
+from .scan_patterns import RosetteScanner, mid360_directions, rosette_directions
 
 REFLECTIVITY = {"road": 12, "lane_marking": 90, "sidewalk": 25, "pothole": 8, "crack": 8, "patch": 14,
                 "manhole": 30, "background": 0}
@@ -34,22 +35,21 @@ class LidarParams:
     seed: int = field(0, lo=0, doc="noise seed (combined with the sensor's name)")
 
 
-class LidarSensor:
-    kind = "lidar"
+class LidarSensor(MountedSensor):
     message = "points"
 
     def __init__(self, sensor_id, rate_hz, extrinsic, params: LidarParams) -> None:
         if params.pattern not in ("mid360", "rosette"):
             raise RoadtwinError(f"sensor {sensor_id}: lidar pattern must be mid360 or rosette, got {params.pattern!r}")
-        self.id, self.rate_hz, self.extrinsic, self.params = sensor_id, float(rate_hz), np.asarray(extrinsic), params
-        self.rng = np.random.default_rng([params.seed, *sensor_id.encode()])
+        super().__init__(sensor_id, rate_hz, extrinsic, params)
         self.n = int(round(params.points_per_s / self.rate_hz))
 
     def directions(self, t0: float, dur: float) -> np.ndarray:
         p = self.params
         if p.pattern == "mid360":
             return mid360_directions(self.n, t0, dur)
-        d = rosette_directions(self.n, t0, dur, p.fov_deg, 1180.0, 1180.0 * 0.6180339887 * 1.3)
+        prisms = RosetteScanner()
+        d = rosette_directions(self.n, t0, dur, p.fov_deg, prisms.f1_hz, prisms.f2_hz)
         return np.column_stack([d[:, 2], -d[:, 0], -d[:, 1]])   # optical axis -> Livox x forward
 
     def sample(self, state, world) -> dict:
@@ -63,11 +63,7 @@ class LidarSensor:
         T = state.pose_at(tp) @ self.extrinsic                    # (n, 4, 4) sensor poses per point
         d_w = np.einsum("nij,nj->ni", T[:, :3, :3], d_s)
         hit = world.cast(T[:, :3, 3], d_w)
-        r_true = hit["t"]
-        keep = np.isfinite(r_true) & (r_true >= p.min_range_m) & (r_true <= p.max_range_m)
-        if p.dropout > 0:
-            keep &= self.rng.random(self.n) >= p.dropout
-        r = r_true[keep] + self.rng.normal(0.0, p.range_sigma_m, int(keep.sum()))
+        keep, r = returns(hit["t"], self.rng, p.min_range_m, p.max_range_m, p.dropout, p.range_sigma_m)
         cls = hit["class_id"][keep]
         names = world.class_names
         refl = np.array([REFLECTIVITY.get(names[c], 20) if 0 <= c < len(names) else 0 for c in range(len(names))] or [0])
@@ -78,11 +74,9 @@ class LidarSensor:
                 "class_names": list(names), "points_cast": self.n}
 
 
-class Lidar:
+class Lidar(SensorType):
     name = "lidar"
     description = "Livox Mid-360-like LiDAR (or Avia rosette): per-point timing on the clock, range noise, labels"
     Params = LidarParams
     message = "points"
-
-    def create(self, sensor_id, rate_hz, extrinsic, params):
-        return LidarSensor(sensor_id, rate_hz, extrinsic, params)
+    sensor_class = LidarSensor

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._mount import returns
+
 
 def mid360_directions(n: int, t0: float, duration: float, vfov_deg=(-7.0, 52.0), f_az_hz: float = 10.0,
                       f1_hz: float = 1373.7, f2_hz: float = 1373.7 * (math.sqrt(5.0) - 1.0) / 2.0) -> np.ndarray:
@@ -131,8 +133,7 @@ def simulate_scans(vertices: np.ndarray, faces: np.ndarray, poses: np.ndarray,
         d_s = rosette_directions(sc.points_per_frame, i * sc.frame_s, sc.frame_s, sc.fov_deg, sc.f1_hz, sc.f2_hz)
         d_w = d_s @ pose[:3, :3].T
         t = cast(scene, np.tile(pose[:3, 3], (len(d_w), 1)), d_w)
-        keep = np.isfinite(t) & (t <= sc.max_range_m) & (rng.random(len(t)) >= sc.dropout)
-        r = t[keep] + rng.normal(0.0, sc.range_sigma_m, int(keep.sum()))
+        keep, r = returns(t, rng, 0.0, sc.max_range_m, sc.dropout, sc.range_sigma_m)
         frames.append(d_s[keep] * r[:, None])
     return frames, np.asarray(poses, np.float64)
 

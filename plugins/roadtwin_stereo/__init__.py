@@ -16,7 +16,9 @@ array) *or* ``left`` + ``right`` (rectified pair, paths or arrays); ``K`` (3x3, 
 and ``baseline`` (m) -- required for metric models; ``transformed`` (bool: the disparity map is
 already transformed, as in ``../shared/data/stereo_pothole``: then only pixels and instances come
 out, since a transformed, normalised map has lost the disparity units needed for 3D points);
-``source`` (a string recorded on every model; default the input path).
+``source`` (a string recorded on every model; default the input path); ``road_mask`` (optional,
+path or array, non-zero = road, e.g. a road segmentation's output: pixels off it are not modelled
+as road nor searched for defects).
 """
 from __future__ import annotations
 
@@ -43,7 +45,7 @@ __all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "
 @dataclass
 class StereoDefectsParams:
     k_grow: float = field(3.0, lo=0.5, doc="candidate pixels: deviation below the road > k_grow robust sigma")
-    k_seed: float = field(10.0, lo=0.5, doc="a defect's peak depth exceeds k_seed road-noise sigmas")
+    k_seed: float = field(10.0, lo=0.5, doc="a defect's peak depth exceeds k_seed road-noise sigmas (small-scale, after the local road model)")
     min_area_frac: float = field(0.0, lo=0.0, hi=1.0, doc="optional floor on a defect's area (fraction of the image)")
     grid_m: float = field(0.01, lo=1e-4, hi=1.0, doc="grid sampling step of the defect mesh (m)")
     disparity_scale: float = field(1.0, lo=1e-9, doc="integer disparity PNGs are divided by this (KITTI: 256)")
@@ -103,6 +105,19 @@ def _read_disparity(path: Path, scale: float, transformed: bool) -> np.ndarray:
     return disp
 
 
+def _apply_road_mask(disp: np.ndarray, mask_in: Any, source: str) -> np.ndarray:
+    """Pixels off the road mask (0) become invalid: a verge or a kerb's foot lies below the road
+    and is not a defect."""
+    mask, name = _image(mask_in, "road mask")
+    mask = (mask.max(axis=-1) if mask.ndim == 3 else mask) > 0
+    if mask.shape != disp.shape:
+        raise RoadtwinError(f"{name if name != 'road mask' else source}: road mask is {mask.shape[1]}x{mask.shape[0]} "
+                            f"px, the disparity {disp.shape[1]}x{disp.shape[0]} px")
+    out = disp.copy()
+    out[~mask] = np.nan
+    return out
+
+
 def _K(k: Any) -> np.ndarray:
     a = np.asarray(k, dtype=np.float64).ravel()
     if a.size == 4:
@@ -154,6 +169,8 @@ class StereoDefects:
         else:
             raise RoadtwinError(f"{self.name}: give a disparity map or a rectified left + right pair")
         source = str(inputs.get("source") or source)
+        if inputs.get("road_mask") is not None:
+            disp = _apply_road_mask(disp, inputs["road_mask"], source)
         valid = np.isfinite(disp)
         if valid.mean() < 0.05:
             raise RoadtwinError(f"{source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")

@@ -17,9 +17,9 @@
    Each contour pixel's ray is intersected with the road plane; the outline is simplified to half
    a grid step and resampled at the grid step. (The ring of step 2 is taken around this padded
    mask.)
-4. Grid sampling: square rings of grid cells (step ``grid_m``) around the centroid cell are added
-   one by one, keeping cells inside the footprint (and not within a third of a step of its edge),
-   until a whole ring falls outside: the grid then covers the whole instance.
+4. Grid sampling: the grid cells (step ``grid_m``, one on the centroid) of the footprint's bounding
+   box that lie inside it (and not within a third of a step of its edge); a footprint of more than
+   MAX_GRID_CELLS cells is refused (a far region whose rays graze the road plane).
 5. Heights: mean z of the k nearest instance points (noise averaging); boundary vertices get the
    pseudo-height 0.
 6. Triangulation: constrained Delaunay (``triangle``, boundary segments kept); the boundary loop is
@@ -176,26 +176,22 @@ def _instance_points(m8: np.ndarray, disp: np.ndarray, valid: np.ndarray, K: np.
     return (backproject(ui, vi, disp[vi, ui], K, baseline) - origin) @ axes.T
 
 
+MAX_GRID_CELLS = 2_000_000  # a footprint needing more grid cells than this is not one defect
+
+
 def _grid_points(poly: Polygon, grid_m: float) -> np.ndarray:
-    """Grid sampling, expanded ring by ring until a whole ring lies outside the footprint."""
+    """The grid cells (step ``grid_m``, one on the centroid) inside the footprint and not within a
+    third of a step of its edge. A footprint larger than MAX_GRID_CELLS cells is a ValueError
+    (a far region whose rays graze the road plane, not a defect)."""
     inner = poly.buffer(-grid_m / 3)
-    pts = []
-    k = 0
-    while True:
-        if k == 0:
-            cells = np.array([[0, 0]])
-        else:
-            r = np.arange(-k, k + 1)
-            cells = np.concatenate([np.stack([r, np.full_like(r, -k)], 1), np.stack([r, np.full_like(r, k)], 1),
-                                    np.stack([np.full(2 * k - 1, -k), r[1:-1]], 1), np.stack([np.full(2 * k - 1, k), r[1:-1]], 1)])
-        xy = cells * grid_m
-        ins = contains_xy(inner, xy[:, 0], xy[:, 1])
-        pts.append(xy[ins])
-        minx, miny, maxx, maxy = poly.bounds
-        if k > 0 and not ins.any() and k * grid_m > max(abs(minx), abs(miny), abs(maxx), abs(maxy)):
-            break
-        k += 1
-    return np.concatenate(pts) if pts else np.zeros((0, 2))
+    minx, miny, maxx, maxy = poly.bounds
+    i0, i1 = int(np.floor(minx / grid_m)), int(np.ceil(maxx / grid_m))
+    j0, j1 = int(np.floor(miny / grid_m)), int(np.ceil(maxy / grid_m))
+    if (i1 - i0 + 1) * (j1 - j0 + 1) > MAX_GRID_CELLS:
+        raise ValueError(f"footprint of {poly.area:.1f} m2 is too large to mesh at {grid_m} m")
+    ii, jj = np.meshgrid(np.arange(i0, i1 + 1), np.arange(j0, j1 + 1), indexing="ij")
+    xy = np.column_stack([ii.ravel(), jj.ravel()]) * grid_m
+    return xy[contains_xy(inner, xy[:, 0], xy[:, 1])]
 
 
 def _triangulate(bpts: np.ndarray, gpts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

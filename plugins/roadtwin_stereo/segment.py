@@ -14,7 +14,10 @@ is absorbed by measuring every threshold in units the frame itself supplies:
    pothole or a non-road area covering a large share of the frame cannot bend the start.
    Trimming at 3 robust sigma then converges to the dominant (road) surface; it absorbs the
    roll/pitch the 1-D transformation leaves.
-3. **Road noise sigma.** The residual ``e = d - r`` is smoothed by a normalised Gaussian (sigma
+   Since issue 20 (``road_model="local"``, the default) this global surface is only the start: a
+   local robust correction (tiles, rows; :mod:`.road_model`) follows the road's undulation, and
+   sigma is the small-scale noise of what is left (step 3 there), not of the quadratic's residual.
+3. **Road noise sigma** (``road_model="quadratic"``). The residual ``e = d - r`` is smoothed by a normalised Gaussian (sigma
    ``blur_px``, ignoring invalid pixels); ``s`` = 1.4826 x MAD over the *road inliers* of the fit
    (not over every valid pixel: kerbs, verges and potholes would inflate it). ``z = e / s``.
 4. **Candidates.** ``z < -k_grow`` with ``k_grow = 3``: the one-sided 3-sigma rule (0.13 % of road
@@ -33,11 +36,11 @@ is absorbed by measuring every threshold in units the frame itself supplies:
    (``close_px``) and hole filling.
 8. **Instances.** 8-connected components, renumbered 1..N.
 
-``k_seed`` and ``depth_frac`` are the two numbers chosen by looking at labels; ``bench/stereo_cv.py``
-chooses them by leave-one-out cross-validation and reports F1 only on held-out frames
-(docs/stereo_detector.md). The defaults are the values every fold chose on the 13 frames
-(k_seed 10, depth_frac 0: the labels put a pothole's edge at road level, z ~ 0); depth_frac > 0
-is the knob for roads whose potholes come out too wide.
+``k_seed``, ``depth_frac`` and ``tile_frac`` are the numbers chosen by looking at labels;
+``bench/stereo_cv.py`` chooses them by leave-one-out cross-validation and reports F1 only on held-out
+frames (docs/stereo_detector.md, which also says why k_seed stays 10 where the folds chose 15);
+depth_frac 0: the labels put a pothole's edge at road level, z ~ 0; depth_frac > 0 is the knob for
+roads whose potholes come out too wide.
 """
 from __future__ import annotations
 
@@ -48,6 +51,8 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from roadtwin_core import RoadtwinError
+
+from .road_model import deep_regions, local_road_residual
 
 MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian x this = its standard deviation
 
@@ -61,7 +66,11 @@ class SegmentParams:
     blur_px: float = 2.0         # Gaussian sigma of the residual smoothing (pixels)
     open_px: int = 3             # opening radius (speckle removal)
     close_px: int = 5            # closing radius (gap bridging)
-    surface_degree: int = 2      # road surface model: polynomial degree in (u, v)
+    surface_degree: int = 2      # the global surface's polynomial degree in (u, v)
+    road_model: str = "local"    # "local": global surface + robust tile correction (road_model.py); "quadratic"
+    tile_frac: float = 0.0625    # local model: tile side as a fraction of the frame's shorter side
+    model_iters: int = 3         # local model: rounds of masking candidates and refitting
+    mask_k: float = 10.0         # local model: regions reaching this many sigmas are masked from the road fit
 
 
 def load_disparity(path: str | Path, scale: float = 1.0) -> np.ndarray:
@@ -160,25 +169,35 @@ def fit_road_surface(d: np.ndarray, degree: int = 2, step: int = 4, iters: int =
 
 
 def road_residual(disp: np.ndarray, params: SegmentParams | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(z, valid): the smoothed residual to the robust road surface in units of the road's own
-    noise sigma (road level = 0, potholes negative), and the mask of valid pixels."""
+    """(z, valid): the smoothed residual to the road model in units of the road's own noise
+    sigma (road level = 0, potholes negative), and the mask of valid pixels. With
+    ``road_model="local"`` (default) the global surface is corrected by the local robust model
+    of :mod:`.road_model` and sigma is the small-scale (high-pass) noise."""
     import cv2
 
     p = params or SegmentParams()
+    if p.road_model not in ("local", "quadratic"):
+        raise ValueError(f"road_model must be 'local' or 'quadratic', got {p.road_model!r}")
     d = np.asarray(disp, dtype=np.float64).copy()
     d[~np.isfinite(d) | (d == 0)] = np.nan
     valid = np.isfinite(d)
     if valid.sum() < 100:
         return np.zeros(d.shape), valid
     surface, road = fit_road_surface(d, p.surface_degree, return_inliers=True)
-    res0 = np.where(valid, d - surface, 0.0)
+    e = np.where(valid, d - surface, 0.0)
+    res0 = e
     if p.blur_px > 0:
-        num = cv2.GaussianBlur(res0, (0, 0), p.blur_px)
+        num = cv2.GaussianBlur(e, (0, 0), p.blur_px)
         den = cv2.GaussianBlur(valid.astype(np.float64), (0, 0), p.blur_px)
         res0 = np.where(den > 0.2, num / np.maximum(den, 1e-9), 0.0)
     ref = res0[road] if road.sum() > 100 else res0[valid]
     med = float(np.median(ref))
-    return np.where(valid, (res0 - med) / _robust_sigma(ref), 0.0), valid
+    z = np.where(valid, (res0 - med) / _robust_sigma(ref), 0.0)
+    if p.road_model == "quadratic":
+        return z, valid
+    z, _ = local_road_residual(e, valid, deep_regions(z, valid, p.k_grow, p.mask_k), k_grow=p.k_grow,
+                               k_peak=p.mask_k, tile_frac=p.tile_frac, blur_px=p.blur_px, iters=p.model_iters)
+    return z, valid
 
 
 def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | None = None) -> np.ndarray:

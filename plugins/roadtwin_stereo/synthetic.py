@@ -138,3 +138,61 @@ def hausdorff_to_bowl(scene: BowlScene, recon_camera_points: np.ndarray, step: f
     bowl = true[(true[:, 0] ** 2 + true[:, 1] ** 2) <= scene.radius ** 2]
     d2, _ = cKDTree(rec).query(bowl)
     return float(max(d1.max(), d2.max())), float(np.concatenate([d1, d2]).mean())
+
+
+@dataclass
+class RoadScene(BowlScene):
+    """An undulating road with several bowl potholes, for the local road model's tests: the height
+    above the reference plane at in-plane (x across, y along) is a cross-slope ``cross_slope x``,
+    a crown ``-crown |x - crown_x|``, undulations ``sum a sin(2 pi y / L + phase)`` (``waves``:
+    (a, L, phase) rows, ISO 8608 class C-D amplitudes) and the paraboloid bowls
+    ``-D (1 - r^2 / R^2)`` of ``potholes`` ((x, y, R, D) rows, x, y relative to ``center``)."""
+
+    cross_slope: float = 0.02
+    crown: float = 0.0
+    crown_x: float = 0.0
+    waves: tuple = ((0.02, 8.0, 0.3), (0.008, 3.0, 1.1), (0.003, 1.2, 2.0))
+    potholes: tuple = ((0.0, 0.0, 0.25, 0.05),)
+
+    def road(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        z = self.cross_slope * x - self.crown * np.abs(x - self.crown_x)
+        for a, wl, ph in self.waves:
+            z = z + a * np.sin(2 * np.pi * y / wl + ph)
+        return z
+
+    def bowl(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        z = self.road(x, y)
+        for px, py, r, d in self.potholes:
+            r2 = ((x - px) ** 2 + (y - py) ** 2) / r ** 2
+            z = z + np.where(r2 < 1, -d * (1 - r2), 0.0)
+        return z
+
+    def depth_map(self, cam_x: float = 0.0) -> np.ndarray:
+        """Camera Z of the first hit (bisection between planes above and below every surface point)."""
+        v, u = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
+        ray = np.stack([(u - self.K[0, 2]) / self.f, (v - self.K[1, 2]) / self.f, np.ones_like(u)], -1)
+        o = np.array([cam_x, 0.0, 0.0])
+        nr = ray @ self.n
+        if (nr >= 0).any():
+            raise ValueError("some pixels see no road (above the horizon)")
+        reach = sum(abs(a) for a, _, _ in self.waves) + abs(self.cross_slope) * 20 + self.crown * 20
+        deepest = max((d for *_, d in self.potholes), default=0.0)
+        h0 = o @ self.n + self.H
+        t_lo = np.maximum(h0 - reach, 1e-3) / -nr
+        t_hi = (h0 + reach + 1.01 * deepest) / -nr
+        for _ in range(40):
+            t = 0.5 * (t_lo + t_hi)
+            p = o + ray * t[..., None]
+            loc = self.to_local(p.reshape(-1, 3)).reshape(p.shape)
+            above = loc[..., 2] - self.bowl(loc[..., 0], loc[..., 1]) > 0
+            t_lo = np.where(above, t, t_lo)
+            t_hi = np.where(above, t_hi, t)
+        return 0.5 * (t_lo + t_hi)
+
+    def pothole_masks(self) -> list[np.ndarray]:
+        """Closed-form truth: per pothole, the pixels whose first hit lies inside its rim."""
+        v, u = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
+        z = self.depth_map()
+        p = np.stack([(u - self.K[0, 2]) / self.f * z, (v - self.K[1, 2]) / self.f * z, z], -1)
+        loc = self.to_local(p.reshape(-1, 3)).reshape(p.shape)
+        return [(loc[..., 0] - px) ** 2 + (loc[..., 1] - py) ** 2 < r ** 2 for px, py, r, _ in self.potholes]

@@ -7,7 +7,7 @@ This file imports nothing but numpy and warp (no USD). Everything is plain array
   coordinates (st) of the face's three corners;
 - materials are images (what the stage's ``UsdPreviewSurface`` materials bind: linear diffuse,
   roughness, tangent-space normal map; constants are 1x1 images) packed into one atlas with
-  box-filtered MIP levels (``build_textures``);
+  box-filtered MIP levels (``textures.py``: ``build_textures``);
 - a camera is a pinhole (fx, fy, cx, cy, width, height) with a camera-to-world rotation whose
   columns are the camera's x (right), y (down), z (forward) axes in world coordinates (OpenCV
   convention) and a centre; pixel (i, j) looks through image point (i, j) (pixel centres at
@@ -15,8 +15,8 @@ This file imports nothing but numpy and warp (no USD). Everything is plain array
 - the G-buffer holds, per pixel: z-depth along the optical axis (0 = no hit), ray length, the
   unit normal in camera coordinates (facing the camera), class, instance and face id (-1);
 - shading turns a G-buffer into linear RGB radiance: st interpolated barycentrically at the hit,
-  a trilinear MIP lookup per map (level from the pixel's footprint on the surface, repeat /
-  clamp / mirror wrapping), the normal map applied in the face's tangent frame (the st
+  an anisotropic MIP lookup per map (``textures.py``: the pixel's st derivatives from ray
+  differentials on the hit face's plane; repeat / clamp / mirror wrapping), the normal map applied in the face's tangent frame (the st
   gradient dP/ds, dP/dt: exact for world-planar and lane-aligned st alike), Lambert diffuse
   from a sun with ray-traced shadows plus sky ambient, a roughness-driven specular lobe, a sky
   gradient by direction, wet-road darkening and sky reflection, exponential fog.
@@ -33,10 +33,12 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from .textures import (GREY, WRAP_MODES, Textures, build_textures, mip_levels,  # noqa: F401 (re-exported)
+                       sample_map, set_material_look)
+
 # nothing here is differentiated: no backward (adjoint) code, which cost most of the compile time
 wp.set_module_options({"enable_backward": False})
 
-WRAP_MODES = {"repeat": 0, "clamp": 1, "mirror": 2}
 _LOADED: set = set()     # devices this module's kernels are loaded on
 _LOAD_LOCK = threading.Lock()    # a warm-up thread and the first frame may ask at once
 
@@ -92,31 +94,9 @@ class Light:
 
 
 @wp.struct
-class Textures:
-    """Every material image in one atlas: MIP levels (box-filtered, level 0 first) of every
-    map stored row-major one after the other, top row first. A map is an image with its levels;
-    a material names its diffuse, roughness and (optional, -1) normal maps."""
-
-    atlas: wp.array(dtype=wp.vec3)
-    level_offset: wp.array(dtype=wp.int32)
-    level_w: wp.array(dtype=wp.int32)
-    level_h: wp.array(dtype=wp.int32)
-    map_first: wp.array(dtype=wp.int32)     # first level of each map
-    map_levels: wp.array(dtype=wp.int32)
-    map_wrap_s: wp.array(dtype=wp.int32)    # 0 repeat, 1 clamp, 2 mirror
-    map_wrap_t: wp.array(dtype=wp.int32)
-    mat_diffuse: wp.array(dtype=wp.int32)
-    mat_rough: wp.array(dtype=wp.int32)
-    mat_normal: wp.array(dtype=wp.int32)
-    mat_metallic: wp.array(dtype=float)
-    mat_remap: wp.array(dtype=wp.int32)     # per-frame look: material id -> id whose maps are sampled
-    mat_scale: wp.array(dtype=wp.vec3)      # per-frame look: diffuse multiplier, by the face's own id
-
-
-@wp.struct
 class Faces:
-    """Per-face shading data: material, st of the 3 corners (3 entries a face), st gradient
-    (dP/ds, dP/dt: the tangent frame) and st units per metre (for the MIP level)."""
+    """Per-face shading data: material, st of the 3 corners (3 entries a face) and the st
+    gradient (dP/ds, dP/dt: the tangent frame of normal maps)."""
 
     points: wp.array(dtype=wp.vec3)
     indices: wp.array(dtype=wp.int32)
@@ -125,7 +105,6 @@ class Faces:
     uv: wp.array(dtype=wp.vec2)
     tangent: wp.array(dtype=wp.vec3)
     bitangent: wp.array(dtype=wp.vec3)
-    st_per_m: wp.array(dtype=float)
 
 
 # --------------------------------------------------------------------------------- helpers
@@ -147,81 +126,6 @@ def sky(d: wp.vec3, L: Light) -> wp.vec3:
         c = L.ground_rgb * (1.0 - k) + L.sky_horizon * k
     if L.fog_density > 0.0:
         c = c * 0.15 + L.fog_rgb * 0.85
-    return c
-
-
-# --------------------------------------------------------------------------------- textures
-@wp.func
-def wrap_index(i: int, n: int, mode: int) -> int:
-    """Texel index ``i`` folded into [0, n): 0 repeat, 1 clamp, 2 mirror."""
-    r = int(0)
-    if mode == 1:
-        r = wp.clamp(i, 0, n - 1)
-    elif mode == 2:
-        p = ((i % (2 * n)) + 2 * n) % (2 * n)
-        r = p
-        if p >= n:
-            r = 2 * n - 1 - p
-    else:
-        r = ((i % n) + n) % n
-    return r
-
-
-@wp.func
-def fold_coord(x: float, mode: int) -> float:
-    """Texture coordinate reduced to one period before scaling to texels (float32 keeps
-    sub-texel precision for st in the hundreds: a town a few km long)."""
-    r = x
-    if mode == 0:
-        r = x - wp.floor(x)
-    elif mode == 2:
-        r = x - 2.0 * wp.floor(x * 0.5)
-    return r
-
-
-@wp.func
-def texel(tex: Textures, off: int, w: int, i: int, j: int) -> wp.vec3:
-    return tex.atlas[off + j * w + i]
-
-
-@wp.func
-def bilinear(tex: Textures, level: int, ws: int, wt: int, s: float, t: float) -> wp.vec3:
-    """Bilinear lookup in one MIP level; st (0, 0) is the image's lower-left corner (USD)."""
-    off = tex.level_offset[level]
-    w = tex.level_w[level]
-    h = tex.level_h[level]
-    x = s * float(w) - 0.5
-    y = (1.0 - t) * float(h) - 0.5
-    x0 = wp.floor(x)
-    y0 = wp.floor(y)
-    fx = x - x0
-    fy = y - y0
-    i0 = wrap_index(int(x0), w, ws)
-    i1 = wrap_index(int(x0) + 1, w, ws)
-    j0 = wrap_index(int(y0), h, wt)
-    j1 = wrap_index(int(y0) + 1, h, wt)
-    top = texel(tex, off, w, i0, j0) * (1.0 - fx) + texel(tex, off, w, i1, j0) * fx
-    bot = texel(tex, off, w, i0, j1) * (1.0 - fx) + texel(tex, off, w, i1, j1) * fx
-    return top * (1.0 - fy) + bot * fy
-
-
-@wp.func
-def sample_map(tex: Textures, m: int, s: float, t: float, footprint_st: float) -> wp.vec3:
-    """Trilinear MIP lookup: the level whose texel matches the pixel's footprint on the
-    surface (``footprint_st`` in st units), blended with the next coarser one."""
-    first = tex.map_first[m]
-    n = tex.map_levels[m]
-    ws = tex.map_wrap_s[m]
-    wt = tex.map_wrap_t[m]
-    su = fold_coord(s, ws)
-    tu = fold_coord(t, wt)
-    size = float(wp.max(tex.level_w[first], tex.level_h[first]))
-    lod = wp.clamp(wp.log2(wp.max(footprint_st * size, 1.0e-8)), 0.0, float(n - 1))
-    l0 = int(wp.floor(lod))
-    f = lod - float(l0)
-    c = bilinear(tex, first + l0, ws, wt, su, tu)
-    if f > 0.0 and l0 + 1 < n:
-        c = c * (1.0 - f) + bilinear(tex, first + l0 + 1, ws, wt, su, tu) * f
     return c
 
 
@@ -291,6 +195,35 @@ def barycentric(p: wp.vec3, a: wp.vec3, b: wp.vec3, c: wp.vec3) -> wp.vec3:
     return wp.vec3(1.0 - w1 - w2, w1, w2)
 
 
+@wp.func
+def face_st(F: Faces, f: int, q: wp.vec3) -> wp.vec2:
+    """st at point ``q`` of face ``f``'s plane: its corners' st interpolated (extrapolated
+    outside the triangle: st is affine on the face)."""
+    bw = barycentric(q, F.points[F.indices[3 * f]], F.points[F.indices[3 * f + 1]], F.points[F.indices[3 * f + 2]])
+    return F.uv[3 * f] * bw[0] + F.uv[3 * f + 1] * bw[1] + F.uv[3 * f + 2] * bw[2]
+
+
+@wp.func
+def plane_hit(cam: Cam, x: float, y: float, p: wp.vec3, n: wp.vec3) -> wp.vec3:
+    """Where the ray through image point (x, y) meets the plane through ``p`` with normal ``n``
+    (facing the camera). A ray (nearly) parallel to the plane is taken to meet it at the
+    incidence cosine 0.02: the footprint's stretch is bounded (50x) near the horizon."""
+    r = cam.rot * wp.vec3((x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, 1.0)
+    den = wp.min(wp.dot(r, n), -0.02 * wp.length(r))
+    return cam.pos + r * (wp.dot(p - cam.pos, n) / den)
+
+
+@wp.func
+def st_derivatives(F: Faces, f: int, cam: Cam, i: int, j: int, p: wp.vec3, n: wp.vec3):
+    """The st change across pixel (i, j) in x and in y (ray differentials: the rays through the
+    pixel's edges meet the hit face's plane): the footprint the texture filter averages over."""
+    x = float(i)
+    y = float(j)
+    dx = face_st(F, f, plane_hit(cam, x + 0.5, y, p, n)) - face_st(F, f, plane_hit(cam, x - 0.5, y, p, n))
+    dy = face_st(F, f, plane_hit(cam, x, y + 0.5, p, n)) - face_st(F, f, plane_hit(cam, x, y - 0.5, p, n))
+    return dx, dy
+
+
 @wp.kernel
 def shade_kernel(mesh: wp.uint64, F: Faces, tex: Textures, cam: Cam, L: Light,
                  dist: wp.array(dtype=float), normal: wp.array(dtype=wp.vec3), face: wp.array(dtype=wp.int32),
@@ -307,23 +240,19 @@ def shade_kernel(mesh: wp.uint64, F: Faces, tex: Textures, cam: Cam, L: Light,
     p = cam.pos + d * t
     n = cam.rot * normal[tid]
     v = -d
-    # texture coordinates: barycentric interpolation of the face's corner st
-    bw = barycentric(p, F.points[F.indices[3 * f]], F.points[F.indices[3 * f + 1]], F.points[F.indices[3 * f + 2]])
-    uv = F.uv[3 * f] * bw[0] + F.uv[3 * f + 1] * bw[1] + F.uv[3 * f + 2] * bw[2]
-    # pixel footprint on the surface in st units: t / fx metres across the ray, stretched by
-    # 1 / cos(incidence) along the slope; the geometric mean of the two axes picks the MIP level
-    # (isotropic filtering: a little blur on grazing roads instead of shimmer)
-    cosi = wp.max(wp.abs(wp.dot(n, d)), 0.02)
-    fp = (t / cam.fx) / wp.sqrt(cosi) * F.st_per_m[f]
+    # texture coordinates: barycentric interpolation of the face's corner st; the pixel's
+    # footprint in st (anisotropic: long along a road seen at a grazing angle, narrow across)
+    uv = face_st(F, f, p)
+    dst_dx, dst_dy = st_derivatives(F, f, cam, i, j, p, n)
     m0 = F.mat[f]
     m = tex.mat_remap[m0]
-    albedo = wp.cw_mul(sample_map(tex, tex.mat_diffuse[m], uv[0], uv[1], fp), tex.mat_scale[m0])
-    rough = wp.clamp(sample_map(tex, tex.mat_rough[m], uv[0], uv[1], fp)[0], 0.02, 1.0)
+    albedo = wp.cw_mul(sample_map(tex, tex.mat_diffuse[m], uv[0], uv[1], dst_dx, dst_dy), tex.mat_scale[m0])
+    rough = wp.clamp(sample_map(tex, tex.mat_rough[m], uv[0], uv[1], dst_dx, dst_dy)[0], 0.02, 1.0)
     metallic = tex.mat_metallic[m]
     ns = n
     nm_id = tex.mat_normal[m]
     if nm_id >= 0:
-        nt = sample_map(tex, nm_id, uv[0], uv[1], fp)
+        nt = sample_map(tex, nm_id, uv[0], uv[1], dst_dx, dst_dy)
         if nt[2] > 1.0e-3:
             tt, bb = tangent_frame(n, F.tangent[f], F.bitangent[f])
             ns = wp.normalize(tt * nt[0] + bb * nt[1] + n * nt[2])
@@ -542,114 +471,17 @@ class GBuffer:
         h, w = self.height, self.width
         out = {}
         for f in fields:
-            a = np.array(getattr(self, f).numpy(), copy=True)  # CPU arrays are views: copy
+            arr = getattr(self, f)
+            a = arr.numpy()                    # a new host array from a GPU; a view of a CPU array:
+            if arr.device.is_cpu:              # copy that one (the buffer is reused next frame)
+                a = a.copy()
             out[f] = a.reshape(h, w, 3) if a.ndim == 2 else a.reshape(h, w)
         return out
 
 
-def mip_levels(img: np.ndarray) -> list[np.ndarray]:
-    """Box-filtered MIP pyramid (level 0 = the image) down to 1x1. An odd side is first padded
-    with its own first row/column (the texture repeats), so a level's mean stays the image's
-    mean for power-of-two sizes."""
-    levels = [np.ascontiguousarray(img, dtype=np.float32)]
-    a = levels[0]
-    while a.shape[0] > 1 or a.shape[1] > 1:
-        if a.shape[0] > 1:
-            if a.shape[0] % 2:
-                a = np.concatenate([a, a[:1]], axis=0)
-            a = 0.5 * (a[0::2] + a[1::2])
-        if a.shape[1] > 1:
-            if a.shape[1] % 2:
-                a = np.concatenate([a, a[:, :1]], axis=1)
-            a = 0.5 * (a[:, 0::2] + a[:, 1::2])
-        levels.append(np.ascontiguousarray(a, dtype=np.float32))
-    return levels
-
-
-def _rgb(img) -> np.ndarray:
-    a = np.asarray(img, dtype=np.float32)
-    if a.ndim == 2:
-        a = a[..., None]
-    if a.shape[2] == 1:
-        a = np.repeat(a, 3, axis=2)
-    return a[..., :3]
-
-
-GREY = {"name": "default_grey", "diffuse": np.full((1, 1, 3), 0.18, np.float32),
-        "roughness": np.full((1, 1, 1), 0.5, np.float32), "normal": None, "metallic": 0.0, "wrap": ("repeat", "repeat")}
-
-
-def build_textures(materials: list[dict], device) -> tuple[Textures, int]:
-    """Pack the materials' images (dicts: diffuse (H,W,3) linear, roughness (H,W,1), normal
-    (H,W,3) or None, metallic, wrap (s, t)) with their MIP levels into one atlas. An image used
-    by several materials is stored once. Returns the struct and the atlas size in texels."""
-    maps: dict = {}
-    chunks, lvl_off, lvl_w, lvl_h, first, nlev, wrap_s, wrap_t = [], [], [], [], [], [], [], []
-    total = 0
-
-    def add_map(img, wrap) -> int:
-        nonlocal total
-        key = (id(img), wrap)
-        if key in maps:
-            return maps[key]
-        levels = mip_levels(_rgb(img))
-        first.append(len(lvl_off))
-        nlev.append(len(levels))
-        wrap_s.append(WRAP_MODES.get(wrap[0], 0))
-        wrap_t.append(WRAP_MODES.get(wrap[1], 0))
-        for lv in levels:
-            lvl_off.append(total)
-            lvl_h.append(lv.shape[0])
-            lvl_w.append(lv.shape[1])
-            chunks.append(lv.reshape(-1, 3))
-            total += lv.shape[0] * lv.shape[1]
-        maps[key] = len(first) - 1
-        return maps[key]
-
-    md, mr, mn, mm = [], [], [], []
-    for mat in materials:
-        wrap = tuple(mat.get("wrap", ("repeat", "repeat")))
-        md.append(add_map(mat["diffuse"], wrap))
-        mr.append(add_map(mat["roughness"], wrap))
-        mn.append(add_map(mat["normal"], wrap) if mat.get("normal") is not None else -1)
-        mm.append(float(mat.get("metallic", 0.0)))
-    if total >= 2 ** 31:
-        raise ValueError(f"textures too large for one atlas ({total} texels)")
-    tex = Textures()
-
-    def ia(x):
-        return wp.array(np.asarray(x, np.int32), dtype=wp.int32, device=device)
-
-    # one copy of the texels into the atlas; on a CPU device warp uses that memory as it is
-    # (tens of MB for a few 1024 px materials: each extra copy cost ~30 ms)
-    atlas = np.empty((total, 3), np.float32)
-    for off, chunk in zip(lvl_off, chunks):
-        atlas[off:off + len(chunk)] = chunk
-    device = wp.get_device(device)
-    tex.atlas = wp.array(atlas, dtype=wp.vec3, device=device, copy=not device.is_cpu)
-    tex.level_offset, tex.level_w, tex.level_h = ia(lvl_off), ia(lvl_w), ia(lvl_h)
-    tex.map_first, tex.map_levels, tex.map_wrap_s, tex.map_wrap_t = ia(first), ia(nlev), ia(wrap_s), ia(wrap_t)
-    tex.mat_diffuse, tex.mat_rough, tex.mat_normal = ia(md), ia(mr), ia(mn)
-    tex.mat_metallic = wp.array(np.asarray(mm, np.float32), dtype=float, device=device)
-    set_material_look(tex, np.arange(len(materials)), np.ones((len(materials), 3)), device)
-    return tex, total
-
-
-def set_material_look(tex: Textures, remap: np.ndarray, scale: np.ndarray, device) -> None:
-    """Per-frame material remap (id -> id sampled) and diffuse multipliers (n_materials, 3)."""
-    remap = np.asarray(remap, np.int32).reshape(-1)
-    scale = np.asarray(scale, np.float32).reshape(-1, 3)
-    n = tex.mat_diffuse.shape[0]
-    if len(remap) != n or len(scale) != n or remap.min() < 0 or remap.max() >= n:
-        raise ValueError(f"material look: expected {n} remap entries in range and {n} scales")
-    tex.mat_remap = wp.array(remap, dtype=wp.int32, device=device)
-    tex.mat_scale = wp.array(scale, dtype=wp.vec3, device=device)
-
-
 def face_st_frames(vertices: np.ndarray, faces: np.ndarray, face_uv: np.ndarray):
-    """Per face: dP/ds and dP/dt (the st gradient, the tangent frame of normal maps) and st
-    units per metre (sqrt of st area over world area, the MIP level's scale). A face whose st
-    is degenerate (constant or collinear) gets world X / Y and 0 (finest level)."""
+    """Per face: dP/ds and dP/dt (the st gradient, the tangent frame of normal maps). A face
+    whose st is degenerate (constant or collinear) gets world X / Y."""
     p = vertices[faces]
     e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
     d1, d2 = face_uv[:, 1] - face_uv[:, 0], face_uv[:, 2] - face_uv[:, 0]
@@ -661,8 +493,7 @@ def face_st_frames(vertices: np.ndarray, faces: np.ndarray, face_uv: np.ndarray)
     bit = (e2 * d1[:, 0:1] - e1 * d2[:, 0:1]) * inv
     tan[~ok] = (1.0, 0.0, 0.0)
     bit[~ok] = (0.0, 1.0, 0.0)
-    density = np.where(ok, np.sqrt(np.abs(det) / np.where(ok, area2, 1.0)), 0.0)
-    return tan.astype(np.float32), bit.astype(np.float32), density.astype(np.float32)
+    return tan.astype(np.float32), bit.astype(np.float32)
 
 
 class RaycastScene:
@@ -688,7 +519,7 @@ class RaycastScene:
         if fmat.min() < 0 or fmat.max() >= len(materials):
             raise ValueError("face material ids out of range")
         uv = np.zeros((m, 3, 2), np.float32) if face_uv is None else np.asarray(face_uv, np.float32).reshape(m, 3, 2)
-        tan, bit, dens = face_st_frames(v.astype(np.float64), f, uv.astype(np.float64))
+        tan, bit = face_st_frames(v.astype(np.float64), f, uv.astype(np.float64))
         self.face_class = wp.array(np.asarray(face_class, np.int32).reshape(m), dtype=wp.int32, device=self.device)
         self.face_inst = wp.array(np.asarray(face_instance, np.int32).reshape(m), dtype=wp.int32, device=self.device)
         F = Faces()
@@ -697,7 +528,6 @@ class RaycastScene:
         F.uv = wp.array(uv.reshape(-1, 2), dtype=wp.vec2, device=self.device)
         F.tangent = wp.array(tan, dtype=wp.vec3, device=self.device)
         F.bitangent = wp.array(bit, dtype=wp.vec3, device=self.device)
-        F.st_per_m = wp.array(dens, dtype=float, device=self.device)
         self.faces = F
         self.textures, self.texels = build_textures(materials, self.device)
         self.background = int(background_class)

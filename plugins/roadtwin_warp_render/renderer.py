@@ -157,6 +157,10 @@ class WarpRenderer:
         prepared = self.prepare(scene, params)
         cameras = list(cameras)
         self.check_cameras(prepared, cameras, params)
+        return (prepared, cameras, params) + self._light_and_look(prepared, params, look)
+
+    def _light_and_look(self, prepared, params, look):
+        """The warp light of ``params`` (sky tinted by ``look``) and the material look (remap, scale)."""
         rc = _rc()
         spec = rc.light_preset(params.weather, sun_elevation_deg=params.sun_elevation_deg,
                                sun_azimuth_deg=params.sun_azimuth_deg, fog_density=params.fog_density,
@@ -169,7 +173,48 @@ class WarpRenderer:
             remap, scale = look.remap, look.albedo_scale
         else:
             remap, scale = np.arange(n), np.ones((n, 3))
-        return prepared, cameras, params, rc.make_light(spec), (remap, scale)
+        return rc.make_light(spec), (remap, scale)
+
+    # ------------------------------------------------------------------ finished on the device
+    def render_finished(self, scene, requests: Sequence[dict], params: RenderParams | None = None,
+                        batch: int = 16) -> Iterator[dict]:
+        """Frames finished where they are rendered (``post.py``): the camera model and the
+        labels run as device kernels on batches of ``batch`` frames; one copy to the host a batch.
+        A request: ``camera`` (mono), ``params``, ``look`` (or None), ``effects`` (``ImageEffects``
+        or None: plain tone mapping), ``labels`` (label_distance, and with a class map its
+        ``plain`` / ``inside`` tables, the ego ``lane`` (world XY), ``half_width``, ``s_cam``).
+        Yields per request: rgb8, labels (uint8), depth, instance, exposure_scale. Same seed,
+        same device: same bytes; other bytes than the CPU's camera model (other random numbers)."""
+        from .post import DeviceFinisher, make_sensor
+
+        params = check_params(params or RenderParams(), "renderer warp")
+        prepared = self.prepare(scene, params)
+        requests = list(requests)
+        if not requests:
+            return
+        k = requests[0]["camera"].intrinsics
+        finisher = DeviceFinisher(k.width, k.height, batch, prepared.device)
+        for start in range(0, len(requests), batch):
+            part = requests[start:start + batch]
+            cams = [r["camera"] for r in part]
+            if any(isinstance(c, StereoCamera) or c.intrinsics != k for c in cams):
+                raise RoadtwinError("renderer warp: frames finished on the device are mono, of one size")
+            self.check_cameras(prepared, cams, params)
+            sensors, c = [], None
+            for slot, r in enumerate(part):
+                p = dataclasses.replace(check_params(r["params"], "renderer warp"), shade=True)
+                light, material_look = self._light_and_look(prepared, p, r.get("look"))
+                _rc().set_material_look(prepared.rs.textures, *material_look, prepared.rs.device)
+                c, gb = self._view(prepared, r["camera"], p, light, slot=0)
+                labels = {"background": prepared.rs.background, "label_distance": p.label_distance_m, **r["labels"]}
+                if labels.get("lane") is not None:
+                    labels["lane"] = np.asarray(labels["lane"], np.float64)[:, :2] - prepared.origin[:2]
+                effects = r.get("effects")
+                sensors.append(make_sensor(effects, r["camera"]))
+                finisher.frame(slot, c, gb, sensors[-1], float(getattr(effects, "blur_px", 0.0) or 0.0), labels)
+            out = finisher.finish(c, sensors)
+            for b in range(len(part)):
+                yield {key: value[b] for key, value in out.items()}
 
     def _frames(self, prepared, cameras, params, light, material_look) -> Iterator[Frame]:
         try:

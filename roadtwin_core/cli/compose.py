@@ -34,6 +34,10 @@ def compose(
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"merger {PARAM_HELP}"),
     props: str = typer.Option("default", "--props",
                               help="the roadside world (layers/props.usda): default | none | RULES.toml"),
+    road_textures: Optional[Path] = typer.Option(None, "--road-textures", help="folder of road materials (roadtwin "
+                                                 "reconstruct photo-surfaces): each becomes a roadMaterial variant"),
+    road_material: Optional[str] = typer.Option(None, "--road-material", help="the roadMaterial variant selected "
+                                                "(default asphalt; cobblestone, cement or a --road-textures name)"),
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from ..apps.compose.run import compose as run_compose
@@ -53,7 +57,8 @@ def compose(
 
         result = run_compose(layout, out, defects=defects, seed=seed, merger=merger, surface=surface,
                              progress=report, preview=preview, executor=executor, ray_address=ray_address,
-                             workers=workers, library_dir=library, merger_params=merger_params, props=props)
+                             workers=workers, library_dir=library, merger_params=merger_params, props=props,
+                             road_textures=road_textures, road_material=road_material)
     _print_summary(result)
 
 

@@ -1,10 +1,11 @@
 """``roadtwin reconstruct defects``: stereo defect reconstruction (the paper's fine stream);
 ``roadtwin reconstruct surface``: LiDAR road surface reconstruction (the coarse stream);
-``roadtwin reconstruct photos``: labelled road photos -> textured defect library assets.
+``roadtwin reconstruct photos``: labelled road photos -> textured defect library assets;
+``roadtwin reconstruct photo-surfaces``: labelled road photos -> seamless road materials.
 
 Options only: the text options are parsed here into the typed inputs of
 :mod:`roadtwin_core.apps.reconstruct`, which checks them and runs the reconstructor plugins
-(``stereo_defects``, ``lidar_surface``, ``photo_defects``). Bad input raises :class:`~roadtwin_core.RoadtwinError`,
+(``stereo_defects``, ``lidar_surface``, ``photo_defects``, ``photo_surfaces``). Bad input raises :class:`~roadtwin_core.RoadtwinError`,
 printed by ``roadtwin``'s ``main`` as one line (exit 2), and nothing is written.
 """
 from __future__ import annotations
@@ -14,12 +15,14 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from .._console import console
+from .._console import console, err_console
 from ..errors import RoadtwinError
 from ..params import PARAM_HELP, parse_param_options
 
-__all__ = ["reconstruct_app", "reconstruct_defects_command", "reconstruct_photos_command", "reconstruct_surface_command"]
+__all__ = ["reconstruct_app", "reconstruct_defects_command", "reconstruct_photo_surfaces_command",
+           "reconstruct_photos_command", "reconstruct_surface_command"]
 
 reconstruct_app = typer.Typer(help="Real sensor data -> road surface and defect models.", no_args_is_help=True)
 
@@ -144,6 +147,42 @@ def reconstruct_photos_command(
     console.print(f"wrote {out}: {len(done.paths)} asset(s) from {done.photos} photo(s) "
                   f"({', '.join(f'{n} {t}' for t, n in sorted(by_type.items()))}); "
                   f"{len(done.result.skipped)} instance(s) skipped (smaller than min_pixels or min_area_m2)")
+
+
+@reconstruct_app.command("photo-surfaces")
+def reconstruct_photo_surfaces_command(
+    images: list[Path] = typer.Argument(..., help="photos (files, or folders of .jpg/.png)"),
+    labels: Path = typer.Option(..., "--labels", help="label folder: <image stem>.png, one class id per pixel"),
+    classmap: str = typer.Option("builtin:road_defects_br", "--classmap", help="class map of the labels: its road "
+                                 "class is cut from, its defect classes are kept away from"),
+    rig: str = typer.Option("survey", "--rig", help="camera rig preset, optionally with overrides (as for "
+                            "reconstruct photos)"),
+    license_text: Optional[str] = typer.Option(None, "--license", help="license recorded on every material "
+                                               "(default: the first line of a LICENSE file beside the photos)"),
+    out: Path = typer.Option(..., "-o", "--out", help="materials folder (replaced atomically): NAME_diffuse.png, "
+                             "NAME_roughness.png, NAME_normal.png per surface, materials.json"),
+    reconstructor: str = typer.Option("photo_surfaces", "--reconstructor", help="reconstructor plugin"),
+    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
+) -> None:
+    """Labelled photos -> seamless asphalt materials cut from their defect-free road (compose --road-textures)."""
+    from ..apps.reconstruct import PhotoInputs, reconstruct_photo_surfaces
+
+    preset, overrides = _rig_spec(rig)
+    inputs = PhotoInputs(images=list(images), labels=labels, classmap=classmap, rig=preset, rig_overrides=overrides,
+                         license=license_text)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console, transient=True, disable=not err_console.is_terminal) as bar:
+        task = bar.add_task("frames", total=None)
+        done = reconstruct_photo_surfaces(inputs, out, reconstructor=reconstructor, params=parse_param_options(param),
+                                          progress=lambda n, total: bar.update(task, completed=n, total=total))
+    result = done.result
+    console.print(f"wrote {out}: {len(result.surfaces)} surface(s) from {done.photos} photo(s) "
+                  f"({len(result.skipped)} without a clean window)")
+    for s in result.surfaces:
+        r = s.record
+        console.print(f"  {s.name}: {r['window_m']:g} m window x{r['repeats']} from {Path(r['frame']).name}, "
+                      f"seam ratio {max(r['seam_ratio'].values()):.2f} "
+                      f"(unblended {max(r['seam_ratio_unblended'].values()):.1f})")
 
 
 def _rig_spec(text: str) -> tuple[str, dict[str, float]]:

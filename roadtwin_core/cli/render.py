@@ -62,7 +62,8 @@ def render(
     device: Optional[str] = typer.Option(None, "--device", help="cpu | cuda | cuda:N (default: the renderer's)"),
     backend: str = typer.Option("auto", "--backend", help="ray caster: auto | warp | open3d (CPU)"),
     executor: str = typer.Option("local", "--executor", help="local (process pool) | serial | ray"),
-    workers: Optional[int] = typer.Option(None, "--workers", help="worker processes (default: all cores)"),
+    workers: Optional[int] = typer.Option(None, "--workers", help="local: worker processes (default: all cores; on a "
+                                          "GPU device the frame-finishing processes, default cores - 1); serial: threads"),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address (default: a local one)"),
     speed: float = typer.Option(8.0, "--speed", help="event drive speed in m/s"),
     event_rate: float = typer.Option(500.0, "--event-rate", help="event drive frame rate in Hz"),

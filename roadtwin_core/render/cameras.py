@@ -15,6 +15,7 @@ Conventions (also written to ``meta.json``):
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass
@@ -24,6 +25,21 @@ from typing import Callable, Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
+
+
+def pixel_grid(k: "Intrinsics") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Read-only float64 (H, W) grids of an image: u, v (pixel columns, rows) and the normalized
+    image coordinates (u - cx) / fx, (v - cy) / fy. Cached: every frame of a render asks."""
+    return _pixel_grid(k.width, k.height, k.fx, k.fy, k.cx, k.cy)
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_grid(width, height, fx, fy, cx, cy):
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    grids = (u, v, (u - cx) / fx, (v - cy) / fy)
+    for g in grids:
+        g.flags.writeable = False
+    return grids
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import RoadtwinError
-from .cameras import Camera
+from .cameras import Camera, pixel_grid
 
 
 def world_points(camera: Camera, depth: np.ndarray) -> np.ndarray:
@@ -25,9 +25,9 @@ def world_points(camera: Camera, depth: np.ndarray) -> np.ndarray:
     depth = np.asarray(depth, dtype=np.float64)
     if depth.shape != (k.height, k.width):
         raise RoadtwinError(f"depth map is {depth.shape[1]}x{depth.shape[0]}, the camera is {k.width}x{k.height}")
-    u, v = np.meshgrid(np.arange(k.width, dtype=np.float64), np.arange(k.height, dtype=np.float64))
+    _, _, xn, yn = pixel_grid(k)
     z = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
-    pc = np.stack([(u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z, z], axis=-1)
+    pc = np.stack([xn * z, yn * z, z], axis=-1)
     return pc @ camera.rotation.T + camera.position
 
 
@@ -50,23 +50,28 @@ def lane_coordinates(xy: np.ndarray, lane_xy: np.ndarray, step_m: float = 0.25) 
         raise RoadtwinError("ego lane: the lane centreline has zero length")
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     _, k = cKDTree(pts).query(xy)
+    x, y = xy[:, 0], xy[:, 1]
+    # per piece once (not per point): start, direction, squared length (the same numbers the
+    # per-point form computed, component by component, so the results are bit for bit the same)
+    px, py = pts[:-1, 0], pts[:-1, 1]
+    abx_all, aby_all = pts[1:, 0] - px, pts[1:, 1] - py
+    ll_all = np.maximum(abx_all * abx_all + aby_all * aby_all, 1e-24)
+    len_all = np.sqrt(ll_all)
     best_d2 = np.full(len(xy), np.inf)
     best_s = np.zeros(len(xy))
     best_lat = np.zeros(len(xy))
     inside = np.zeros(len(xy), dtype=bool)
     for j in (np.maximum(k - 1, 0), np.minimum(k, len(pts) - 2)):     # pieces before and after the sample
-        a, b = pts[j], pts[j + 1]
-        ab = b - a
-        ll = np.maximum((ab ** 2).sum(1), 1e-24)
-        ap = xy - a
-        t_raw = (ap * ab).sum(1) / ll
+        abx, aby, ll = abx_all[j], aby_all[j], ll_all[j]
+        apx, apy = x - px[j], y - py[j]
+        t_raw = (apx * abx + apy * aby) / ll
         t = np.clip(t_raw, 0.0, 1.0)
-        d = ap - t[:, None] * ab
-        d2 = (d ** 2).sum(1)
+        dx, dy = apx - t * abx, apy - t * aby
+        d2 = dx * dx + dy * dy
         better = d2 < best_d2
         best_d2 = np.where(better, d2, best_d2)
-        best_s = np.where(better, cum[j] + t * np.sqrt(ll), best_s)
-        cross = ab[:, 0] * ap[:, 1] - ab[:, 1] * ap[:, 0]
+        best_s = np.where(better, cum[j] + t * len_all[j], best_s)
+        cross = abx * apy - aby * apx
         best_lat = np.where(better, np.sign(cross) * np.sqrt(d2), best_lat)
         ok = ((t_raw >= 0) | (j > 0)) & ((t_raw <= 1) | (j < len(pts) - 2))
         inside = np.where(better, ok, inside)
@@ -93,10 +98,24 @@ def ego_lane_mask(camera: Camera, depth: np.ndarray, lane_xy: np.ndarray, lane_w
     if not valid.any():
         return mask
     xy = pts[valid][:, :2]
+    # only points near the lane's bounding box can be within half a lane width of it: the rest
+    # are left out before the (per-point, so unchanged) projection, ~2-3x fewer on a survey frame
+    near = _near_box(xy, lane_xy, lane_width_m / 2)
+    xy = xy[near]
     s, lat, inside = lane_coordinates(xy, lane_xy)
     s_cam, _, _ = lane_coordinates(camera.position[None, :2], lane_xy)
     keep = inside & (np.abs(lat) <= lane_width_m / 2) & (s >= s_cam[0])
     if max_distance_m is not None:
         keep &= np.linalg.norm(xy - camera.position[:2], axis=1) <= max_distance_m
-    mask[valid] = keep
+    kept = np.zeros(len(near), dtype=bool)
+    kept[near] = keep
+    mask[valid] = kept
     return mask
+
+
+def _near_box(xy: np.ndarray, lane_xy: np.ndarray, radius_m: float) -> np.ndarray:
+    """Points within ``radius_m`` (+ 1 mm for rounding) of the lane polyline's bounding box: a
+    superset of the points within ``radius_m`` of the polyline (every point of it lies in the box)."""
+    lane_xy = np.asarray(lane_xy, dtype=np.float64).reshape(-1, 2)
+    lo, hi = lane_xy.min(axis=0) - (radius_m + 1e-3), lane_xy.max(axis=0) + (radius_m + 1e-3)
+    return (xy[:, 0] >= lo[0]) & (xy[:, 0] <= hi[0]) & (xy[:, 1] >= lo[1]) & (xy[:, 1] <= hi[1])

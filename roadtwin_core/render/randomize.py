@@ -29,6 +29,7 @@ targets is byte-identical to one made before they existed.
 """
 from __future__ import annotations
 
+import functools
 import io
 import json
 import math
@@ -40,7 +41,7 @@ import numpy as np
 from PIL import Image
 
 from ..errors import RoadtwinError
-from .cameras import Camera
+from .cameras import Camera, pixel_grid
 from .frames import RenderParams
 from .tonemap import to_srgb8
 
@@ -252,10 +253,10 @@ def forward_flow(camera: Camera, depth: np.ndarray, travel_m: float) -> np.ndarr
     h = np.array([f[0], f[1], 0.0])
     h /= max(float(np.linalg.norm(h)), 1e-12)
     t_cam = camera.rotation.T @ (travel_m * h)               # camera displacement in camera axes
-    u, v = np.meshgrid(np.arange(k.width, dtype=np.float64), np.arange(k.height, dtype=np.float64))
+    u, v, xn, yn = pixel_grid(k)
     ok = np.isfinite(depth) & (depth > 0)
     z = np.where(ok, depth, 1.0)
-    x, y = (u - k.cx) / k.fx * z, (v - k.cy) / k.fy * z
+    x, y = xn * z, yn * z
     z2 = np.maximum(z - t_cam[2], 1e-3)
     u2 = k.fx * (x - t_cam[0]) / z2 + k.cx
     v2 = k.fy * (y - t_cam[1]) / z2 + k.cy
@@ -274,7 +275,7 @@ def motion_blur(rgb: np.ndarray, flow: np.ndarray, max_taps: int = 25) -> np.nda
         return rgb.copy()
     taps = int(min(max_taps, math.ceil(longest) + 1))
     h, w = rgb.shape[:2]
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    gx, gy = _grid32(w, h)
     acc = np.zeros_like(rgb)
     for t in np.linspace(-0.5, 0.5, taps, dtype=np.float32):
         acc += cv2.remap(rgb, gx + t * flow[..., 0], gy + t * flow[..., 1], cv2.INTER_LINEAR,
@@ -282,12 +283,20 @@ def motion_blur(rgb: np.ndarray, flow: np.ndarray, max_taps: int = 25) -> np.nda
     return acc / taps
 
 
+@functools.lru_cache(maxsize=4)
+def _grid32(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Read-only float32 pixel column and row grids (cached: every frame asks)."""
+    gx, gy = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
+    gx.flags.writeable = gy.flags.writeable = False
+    return gx, gy
+
+
 def vignetting(camera_or_size, strength: float) -> np.ndarray:
     """(H, W) relative illumination cos(theta)^(4 * strength), theta the angle off the optical
     axis: 1 at the principal point, falling monotonically towards the corners."""
     k = camera_or_size.intrinsics if isinstance(camera_or_size, Camera) else camera_or_size
-    u, v = np.meshgrid(np.arange(k.width, dtype=np.float64), np.arange(k.height, dtype=np.float64))
-    r2 = ((u - k.cx) / k.fx) ** 2 + ((v - k.cy) / k.fy) ** 2      # tan^2(theta)
+    _, _, xn, yn = pixel_grid(k)
+    r2 = xn ** 2 + yn ** 2                                         # tan^2(theta)
     return (1.0 / (1.0 + r2)) ** (2.0 * strength)                  # cos^2 = 1 / (1 + tan^2)
 
 

@@ -1,4 +1,5 @@
-"""Procedural prototypes of the roadside world: small, low-poly triangle meshes (numpy only).
+"""Procedural prototypes of the roadside world: small, low-poly triangle meshes (numpy; shapely for
+posed footprints).
 
 Each prototype is built once per town and stored once in the stage (a ``UsdGeom.PointInstancer``
 prototype); every tree, pole or car is an instance of one. A prototype is a few *parts* (a tree:
@@ -17,6 +18,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 
 # material name -> (linear diffuse rgb, roughness, metallic)
 PROP_MATERIALS: dict[str, tuple[tuple[float, float, float], float, float]] = {
@@ -42,6 +44,8 @@ PROP_MATERIALS: dict[str, tuple[tuple[float, float, float], float, float]] = {
     "tyre": ((0.02, 0.02, 0.02), 0.9, 0.0),
     "hill_grass": ((0.10, 0.14, 0.06), 0.95, 0.0),
     "ground": ((0.12, 0.13, 0.07), 0.95, 0.0),
+    "signal_green": ((0.02, 0.35, 0.08), 0.3, 0.0),
+    "lamp_glass": ((0.7, 0.68, 0.6), 0.2, 0.0),
 }
 
 #: The UsdSemantics ``class`` labels props carry (a prototype's first label); readers tell a
@@ -230,6 +234,24 @@ def _sign_warning(name):
     return _sign(name, "sign_yellow", (verts, faces))
 
 
+def _traffic_light(name):
+    """A post with a three-lamp head facing +X (map signals that are dynamic)."""
+    lamps = [box(0.05, 0.2, 0.2, 0.14, 0.0, z) for z in (3.35, 3.05, 2.75)]
+    return Prototype(name, "sign", [
+        _part("post", frustum(0.07, 0.06, 3.0, 8), "metal", True),
+        _part("head", box(0.22, 0.34, 0.95, 0.0, 0.0, 2.7), "tyre"),
+        _part("red", lamps[0], "sign_red"), _part("amber", lamps[1], "sign_yellow"),
+        _part("green", lamps[2], "signal_green")], clearance_m=0.8)
+
+
+def _street_lamp(name):
+    """A 7.5 m metal pole with an arm reaching 1.6 m along +X and a lamp head at its end."""
+    return Prototype(name, "pole", [
+        _part("shaft", frustum(0.09, 0.06, 7.5, 8), "metal", True),
+        _part("arm", box(1.7, 0.06, 0.06, 0.85, 0.0, 7.35), "metal"),
+        _part("lamp", box(0.5, 0.25, 0.12, 1.5, 0.0, 7.25), "lamp_glass")], clearance_m=1.0)
+
+
 def _km_post(name):
     return Prototype(name, "sign", [
         _part("post", box(0.14, 0.14, 1.0), "sign_white", True),
@@ -290,6 +312,7 @@ PROTOTYPES = {
     "tree_round": _tree_round, "tree_conifer": _tree_conifer, "shrub": _shrub, "grass_tuft": _grass,
     "utility_pole": _pole, "wire": _wire, "sign_rect": _sign_rect, "sign_warning": _sign_warning,
     "km_post": _km_post, "guardrail": _guardrail, "fence": _fence,
+    "traffic_light": _traffic_light, "street_lamp": _street_lamp,
     "car_red": _car("paint_red"), "car_white": _car("paint_white"), "car_grey": _car("paint_grey"),
     "truck": _truck, "bus": _bus, "hill": _hill,
 }
@@ -315,3 +338,15 @@ def ground_grid(bounds: tuple[float, float, float, float], cell_m: float, apron_
         out = np.array(out)
         return np.concatenate([lo - out[::-1], inner, hi + out])
     return axis(bounds[0], bounds[2]), axis(bounds[1], bounds[3])
+
+
+def posed_footprints(protos: list[Prototype], idx, xy, yaw, scale):
+    """World XY footprint boxes (shapely polygons) of posed instances."""
+    fp = np.array([p.footprint for p in protos])[idx]          # (N, 4)
+    sx, sy = scale[:, 0], scale[:, 1]
+    corners = np.stack([fp[:, [0, 1]], fp[:, [2, 1]], fp[:, [2, 3]], fp[:, [0, 3]]], axis=1)
+    corners = corners * np.stack([sx, sy], -1)[:, None, :]
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    wx = c * corners[..., 0] - s * corners[..., 1] + xy[:, None, 0]
+    wy = s * corners[..., 0] + c * corners[..., 1] + xy[:, None, 1]
+    return shapely.polygons(np.stack([wx, wy], -1))

@@ -33,8 +33,10 @@ import shapely
 from shapely.geometry.polygon import orient
 
 from ..errors import RoadtwinError
-from ..model import RoadSegment
+from ..model import MapObject, RoadSegment
+from .map_props import RULE as MAP_RULE, map_instances, quat_ypr
 from .prop_shapes import PROTOTYPES, Prototype, ground_grid, make_prototype
+from .prop_shapes import posed_footprints as _footprints
 
 UNPAVED_KINDS = ("verge",)
 PLACES = ("roadside", "chain", "lane", "far")
@@ -142,6 +144,7 @@ class PropGroup:
 class Props:
     groups: list[PropGroup] = field(default_factory=list)
     ground: tuple[np.ndarray, np.ndarray] | None = None    # terrain mesh (vertices, faces), world
+    map_objects: dict = field(default_factory=dict)        # the layout's map objects: placed / skipped counts
 
     @property
     def count(self) -> int:
@@ -263,18 +266,6 @@ def _quat_yaw_pitch(yaw: np.ndarray, pitch: np.ndarray) -> np.ndarray:
     return np.column_stack([cy * cp, -sy * sp, cy * sp, sy * cp])
 
 
-def _footprints(protos: list[Prototype], idx, xy, yaw, scale):
-    """World XY footprint boxes (shapely polygons) of posed instances."""
-    fp = np.array([p.footprint for p in protos])[idx]          # (N, 4)
-    sx, sy = scale[:, 0], scale[:, 1]
-    corners = np.stack([fp[:, [0, 1]], fp[:, [2, 1]], fp[:, [2, 3]], fp[:, [0, 3]]], axis=1)
-    corners = corners * np.stack([sx, sy], -1)[:, None, :]
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    wx = c * corners[..., 0] - s * corners[..., 1] + xy[:, None, 0]
-    wy = s * corners[..., 0] + c * corners[..., 1] + xy[:, None, 1]
-    return shapely.polygons(np.stack([wx, wy], -1))
-
-
 class _Occupancy:
     """Accepted props as circles in a hash grid: a candidate must clear every one."""
 
@@ -295,6 +286,11 @@ class _Occupancy:
     def add(self, x: float, y: float, r: float) -> None:
         self.rmax = max(self.rmax, r)
         self.grid.setdefault((int(math.floor(x / self.cell)), int(math.floor(y / self.cell))), []).append((x, y, r))
+
+
+def _rotate(v: np.ndarray, yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([c * v[0] - s * v[1], s * v[0] + c * v[1]])
 
 
 def _choose(rule: PropRule, rng, n: int) -> tuple[list[str], np.ndarray]:
@@ -318,10 +314,11 @@ class PropPlacer:
         self.occ = _Occupancy()
         self.outline_km = self.paved.boundary.length / 1000.0
         self.rings = _rings(self.paved)
+        self.taken_groups: set[str] = set()      # instancer names already used (the map's)
 
     def place(self, rules: tuple[PropRule, ...], strict: bool = True) -> Props:
         out = Props()
-        names: set[str] = set()
+        names: set[str] = set(self.taken_groups)
         for k, rule in enumerate(rules):
             rng = np.random.default_rng([self.seed, 7919, k])
             method = {"roadside": self._roadside, "chain": self._chain, "lane": self._lane, "far": self._far}[rule.place]
@@ -335,6 +332,34 @@ class PropPlacer:
                 names.add(g.name)
             out.groups += groups
         return out
+
+    def place_map(self, objects: list[MapObject]) -> tuple[list[PropGroup], dict]:
+        """The map's objects as instancers (vehicles apart), each added to the occupancy grid."""
+        rows, counts = map_instances(objects, self.segments)
+        groups = []
+        for group, place, vehicles in (("MapObjects", "map", False), ("MapVehicles", "lane", True)):
+            mine = [r for r in rows if r[5] == vehicles]
+            if not mine:
+                continue
+            names = sorted({r[1] for r in mine})
+            idx = np.array([names.index(r[1]) for r in mine], np.int64)
+            xy = np.array([r[2] for r in mine], np.float64)
+            scale = np.array([r[4] for r in mine], np.float64)
+            hpr = np.array([r[0].hpr for r in mine], np.float64)
+            for i, r in enumerate(mine):
+                proto = make_prototype(r[1])
+                fp = proto.footprint
+                centre = xy[i] + _rotate(0.5 * np.array([fp[0] + fp[2], fp[1] + fp[3]]) * scale[i, :2], hpr[i, 0])
+                reach = proto.clearance_m * float(scale[i, :2].max())
+                if proto.label in ("guardrail", "fence"):       # a section: half its length, as chains keep
+                    reach = max(reach, 0.45 * (fp[2] - fp[0]) * float(scale[i, 0]))
+                self.occ.add(float(centre[0]), float(centre[1]), reach)
+            rule = PropRule(MAP_RULE, group, {n: 1.0 for n in names}, yaw="along")
+            g = self._finish(rule, names, idx, xy, hpr[:, 0], scale, quat_ypr(*hpr.T))
+            g.place = place
+            groups.append(g)
+            self.taken_groups.add(group)
+        return groups, counts
 
     def _why(self, rule: PropRule) -> str:
         longest = max((r.length for r in self.rings), default=0.0)
@@ -575,19 +600,26 @@ class PropPlacer:
 
 
 def place_props(segments: list[RoadSegment], rules: tuple[PropRule, ...], height, seed: int, owner: str,
-                ground: bool = True, strict: bool | None = None, taken: np.ndarray | None = None) -> Props:
+                ground: bool = True, strict: bool | None = None, taken: np.ndarray | None = None,
+                map_objects: list[MapObject] = ()) -> Props:
     """The props of a town. ``height(xy) -> z``: the ground under points (the compose surface
     model, so props stand on the same elevation as the road). ``strict``: a rule that places
     nothing is an error (default: for rules other than the built-in ones, which fit what they can).
     ``taken``: (N,3) discs (x, y, radius) already in use, the town's defects: no prop's clearance
-    overlaps one (a car stopped in the lane does not hide a pothole)."""
+    overlaps one (a car stopped in the lane does not hide a pothole). ``map_objects``: the layout's
+    own objects, placed first as the instancers ``MapObjects`` / ``MapVehicles``
+    (:mod:`roadtwin_core.town.map_props`); the rules fill around them."""
     rules = tuple(r.check(owner) for r in rules)
     if strict is None:
         strict = rules != DEFAULT_RULES
     placer = PropPlacer(segments, height, seed, owner)
     for x, y, r in np.asarray(taken if taken is not None else np.zeros((0, 3)), np.float64).reshape(-1, 3):
         placer.occ.add(float(x), float(y), float(r))
+    mapped = placer.place_map(list(map_objects)) if map_objects else None
     props = placer.place(rules, strict)
+    if mapped is not None:
+        props.groups = mapped[0] + props.groups
+        props.map_objects = mapped[1]
     if ground:
         props.ground = placer.ground()
     return props

@@ -8,6 +8,14 @@ are data that the composer drapes into marking meshes, so renderers (Blender, us
 must not draw the flat curve itself. Their style is in ``roadtwin:marking:*`` attributes
 (``type``/``color`` tokens; ``widthM``, ``dashM``, ``gapM``, ``phaseM``, ``spacingM`` doubles),
 the meaning of :class:`~roadtwin_core.model.LaneMarking`.
+
+Map objects (OpenDRIVE objects and signals, :class:`~roadtwin_core.model.MapObject`) are one
+``Scope`` ``/<root>/MapObjects`` holding parallel arrays, one row per object (a map's repeated
+objects run to thousands: one prim each would be slow to write and read):
+``roadtwin:mapObject:`` ``ids``, ``types``, ``subtypes``, ``names``, ``roads`` (string[]), ``kinds``
+(token[]: object, signal), ``positions``, ``hpr``, ``sizes`` (double3[]: world x y z; heading pitch
+roll in rad; length width height in m, 0 = not given) and ``dynamic`` (bool[]). A layout without
+map objects has no such prim.
 """
 from __future__ import annotations
 
@@ -19,7 +27,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 from ..errors import RoadtwinError
-from ..model import ComposeRules, FixedDefect, LaneMarking, RoadSegment, TownLayout
+from ..model import ComposeRules, FixedDefect, LaneMarking, MapObject, RoadSegment, TownLayout
 from .checks import FaceBudget, check_points, open_stage
 from .stage import _array, new_stage, read_mesh, safe_prim_name, set_kind, write_mesh
 
@@ -30,6 +38,10 @@ RULES = "roadtwin:rules:"
 PLACEMENT = "roadtwin:placement:"
 META = "roadtwin:layout:"
 MARKING = "roadtwin:marking:"
+MAP_OBJECT = "roadtwin:mapObject:"
+_MAP_OBJECT_KINDS = ("object", "signal")
+_MAP_OBJECT_STRINGS = {"ids": "id", "types": "type", "subtypes": "subtype", "names": "name", "roads": "road"}
+_MAP_OBJECT_VECTORS = {"positions": "position", "hpr": "hpr", "sizes": "size"}
 _MARKING_NUMBERS = {"widthM": "width_m", "dashM": "dash_m", "gapM": "gap_m", "phaseM": "phase_m",
                     "spacingM": "spacing_m"}
 _RULE_ATTRS = {"defectCount": "defect_count", "seed": "seed", "surface": "surface", "merger": "merger",
@@ -60,8 +72,12 @@ def read_layout(path: str | Path) -> TownLayout:
     fixed: list[FixedDefect] = []
     terrain = None
     markings: list[LaneMarking] = []
+    objects: list[MapObject] = []
     budget = FaceBudget(path)
     for prim in Usd.PrimRange(root):
+        if prim.HasAttribute(MAP_OBJECT + "positions"):
+            objects += _read_map_objects(prim, path)
+            continue
         if prim.HasAttribute(MARKING + "type"):
             # Only the curves are layout data; a composed stage's draped marking meshes may carry
             # the same attributes and are not read back as markings.
@@ -108,7 +124,7 @@ def read_layout(path: str | Path) -> TownLayout:
     if len({m.id for m in markings}) != len(markings):
         raise RoadtwinError(f"{path}: lane marking names must be unique")
     return TownLayout(root.GetName(), segments, read_rules(root, str(path)), str(path), terrain, fixed, metadata,
-                      markings)
+                      markings, objects)
 
 
 def _read_marking(prim: Usd.Prim, path: Path) -> LaneMarking:
@@ -255,6 +271,8 @@ def write_layout(layout: TownLayout, path: str | Path, doc: str = "") -> Path:
         prim.CreateAttribute(PLACEMENT + "seed", Sdf.ValueTypeNames.Int, custom=True).Set(int(fd.seed))
     if layout.markings:
         _write_markings(stage, layout)
+    if layout.objects:
+        _write_map_objects(stage, layout)
     if layout.terrain is not None:
         pts = UsdGeom.Points.Define(stage, f"/{layout.name}/Terrain")
         pts.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(layout.terrain, dtype=np.float32)))
@@ -288,3 +306,41 @@ def _write_markings(stage: Usd.Stage, layout: TownLayout) -> None:
         prim.CreateAttribute(MARKING + "color", Sdf.ValueTypeNames.Token, custom=True).Set(m.color)
         for key, field in _MARKING_NUMBERS.items():
             prim.CreateAttribute(MARKING + key, Sdf.ValueTypeNames.Double, custom=True).Set(float(getattr(m, field)))
+
+
+def _write_map_objects(stage: Usd.Stage, layout: TownLayout) -> None:
+    prim = UsdGeom.Scope.Define(stage, f"/{layout.name}/MapObjects").GetPrim()
+    objs = layout.objects
+    for key, field in _MAP_OBJECT_STRINGS.items():
+        prim.CreateAttribute(MAP_OBJECT + key, Sdf.ValueTypeNames.StringArray, custom=True).Set(
+            Vt.StringArray([str(getattr(o, field)) for o in objs]))
+    prim.CreateAttribute(MAP_OBJECT + "kinds", Sdf.ValueTypeNames.TokenArray, custom=True).Set(
+        Vt.TokenArray([o.kind for o in objs]))
+    for key, field in _MAP_OBJECT_VECTORS.items():
+        prim.CreateAttribute(MAP_OBJECT + key, Sdf.ValueTypeNames.Double3Array, custom=True).Set(
+            Vt.Vec3dArray.FromNumpy(np.array([getattr(o, field) for o in objs], np.float64).reshape(-1, 3)))
+    prim.CreateAttribute(MAP_OBJECT + "dynamic", Sdf.ValueTypeNames.BoolArray, custom=True).Set(
+        Vt.BoolArray([bool(o.dynamic) for o in objs]))
+
+
+def _read_map_objects(prim: Usd.Prim, path: Path) -> list[MapObject]:
+    what = f"{path}: map objects {prim.GetPath()}"
+    cols: dict[str, list] = {}
+    for key in (*_MAP_OBJECT_STRINGS, "kinds", *_MAP_OBJECT_VECTORS, "dynamic"):
+        attr = prim.GetAttribute(MAP_OBJECT + key)
+        value = attr.Get() if attr and attr.HasAuthoredValue() else None
+        if value is None:
+            raise RoadtwinError(f"{what}: needs {MAP_OBJECT}{key}")
+        cols[key] = np.asarray(value, np.float64).reshape(-1, 3) if key in _MAP_OBJECT_VECTORS else list(value)
+    n = len(cols["positions"])
+    if any(len(v) != n for v in cols.values()):
+        raise RoadtwinError(f"{what}: the {MAP_OBJECT}* arrays must all have one row per object ({n})")
+    if not all(np.isfinite(cols[k]).all() for k in _MAP_OBJECT_VECTORS) or (cols["sizes"] < 0).any():
+        raise RoadtwinError(f"{what}: positions, hpr and sizes must be finite and sizes >= 0")
+    bad = sorted(set(cols["kinds"]) - set(_MAP_OBJECT_KINDS))
+    if bad:
+        raise RoadtwinError(f"{what}: unknown kind {bad[0]!r} (known: {', '.join(_MAP_OBJECT_KINDS)})")
+    return [MapObject(cols["ids"][i], str(cols["kinds"][i]), cols["types"][i],
+                      tuple(map(float, cols["positions"][i])), tuple(map(float, cols["hpr"][i])),
+                      tuple(map(float, cols["sizes"][i])), cols["subtypes"][i], cols["names"][i], cols["roads"][i],
+                      bool(cols["dynamic"][i])) for i in range(n)]

@@ -37,6 +37,18 @@ def _array(spec, name, type_name, value, uniform=False):
     return attr
 
 
+def _flat_normals(spec, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Face-varying normals, one per triangle: the prototypes are faceted low-poly shapes, drawn
+    flat by roadtwin's renderer; without normals Blender and Omniverse smooth-shade them (a box
+    truck reads as a capsule)."""
+    v = np.asarray(vertices, np.float64)[np.asarray(faces, np.int64)]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    attr = _array(spec, UsdGeom.Tokens.normals, Sdf.ValueTypeNames.Normal3fArray,
+                  Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(np.repeat(n, 3, axis=0), np.float32)))
+    attr.SetInfo(UsdGeom.Tokens.interpolation, UsdGeom.Tokens.faceVarying)
+
+
 def _materials(layer: Sdf.Layer, root: str, names: list[str]) -> None:
     stage = Usd.Stage.Open(layer)
     UsdGeom.Scope.Define(stage, f"{root}/{PROPS}/Looks")
@@ -119,6 +131,7 @@ def write_props(outdir: Path, root_name: str, doc: str, props: Props) -> Path:
                 for part in p.parts:
                     mpath = f"{ppath}/{part.name}"
                     author_mesh_geometry(geometry, mpath, part.vertices, part.faces)
+                    _flat_normals(Sdf.CreatePrimInLayer(geometry, Sdf.Path(mpath)), part.vertices, part.faces)
                     mspec = define_prim(layer, mpath, "Mesh")
                     author_uniform(mspec, UsdGeom.Tokens.subdivisionScheme, Sdf.ValueTypeNames.Token,
                                    UsdGeom.Tokens.none)

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import triangle
 from pxr import Sdf, Usd, UsdGeom
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from roadtwin_core import ComposeRules, RoadSegment, TownLayout
 from roadtwin_core.apps.compose.run import compose
@@ -69,3 +71,30 @@ def test_default_rules_fit_what_they_can(layout, tmp_path):
     compose(layout, out, preview=False, executor="serial")
     by_rule = json.loads((out / "summary.json").read_text())["props"]["by_rule"]
     assert {"trees", "shrubs", "tall_grass", "hills"} <= set(by_rule)
+
+
+def test_prototypes_carry_outward_flat_normals(layout, tmp_path):
+    """Other tools shade the props as roadtwin draws them: every prototype part has one unit
+    normal per face corner (faceVarying), constant over each face, and pointing away from the
+    part's centre for nearly every face (closed faceted shapes, wound outwards)."""
+    out = tmp_path / "normals"
+    compose(layout, out, preview=False, executor="serial")
+    stage = Usd.Stage.Open(str(out / "town.usda"))
+    parts = [UsdGeom.Mesh(p) for p in Usd.PrimRange(stage.GetPrimAtPath("/Town/Props"))
+             if p.IsA(UsdGeom.Mesh) and "/Prototypes/" in str(p.GetPath())]
+    assert len(parts) >= 5
+    for mesh in parts:
+        pts = np.asarray(mesh.GetPointsAttr().Get(), float)
+        tris = np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3)
+        normals = np.asarray(mesh.GetNormalsAttr().Get(), float).reshape(-1, 3, 3)
+        assert mesh.GetNormalsInterpolation() == UsdGeom.Tokens.faceVarying and len(normals) == len(tris)
+        np.testing.assert_allclose(np.linalg.norm(normals, axis=2), 1.0, atol=1e-5)
+        np.testing.assert_allclose(normals[:, 0], normals[:, 2], atol=1e-6)
+        # each closed piece's own centre (a part may hold several: a car's four wheels)
+        n = len(pts)
+        graph = coo_matrix((np.ones(2 * tris.size), (np.r_[tris.ravel(), np.roll(tris, 1, 1).ravel()],
+                                                     np.r_[np.roll(tris, 1, 1).ravel(), tris.ravel()])), shape=(n, n))
+        _, piece = connected_components(graph, directed=False)
+        centre = np.array([pts[piece == k].mean(axis=0) for k in range(piece.max() + 1)])[piece[tris[:, 0]]]
+        away = ((pts[tris].mean(axis=1) - centre) * normals[:, 0]).sum(axis=1)
+        assert (away > 0).mean() >= 0.9, (mesh.GetPath(), (away > 0).mean())

@@ -262,3 +262,109 @@ def test_auto_route_and_a_sweeps_speed_profile(town, tmp_path):
     assert speed_at == pytest.approx({"D00021": 12.0, "D00029": 18.0})
     assert pieces[0][2] * 3.6 == pytest.approx(30.0) and pieces[-1][2] * 3.6 == pytest.approx(30.0)
     assert {"D00021", "D00029"} <= set(ctx["footprints"]) < {d.id for d in ctx["town"].defects}   # the reachable ones
+
+
+# ------------------------------------------------------------------------------------ many drives
+TINY_RIG = """name = "tiny"
+[[sensor]]
+name = "imu"
+type = "imu"
+rate_hz = 200
+xyz = [0.3, 0.0, 1.05]
+[[sensor]]
+name = "lidar"
+type = "lidar"
+rate_hz = 10
+xyz = [0.3, 0.0, 1.0]
+ypr_deg = [0.0, -45.0, 0.0]
+[sensor.params]
+points_per_s = 5000
+[[sensor]]
+name = "cam"
+type = "camera"
+rate_hz = 10
+xyz = [0.6, 0.06, 0.95]
+ypr_deg = [0.0, -12.0, 0.0]
+[sensor.params]
+width = 32
+height = 24
+max_subframes = 1
+"""
+ROUTES = [f"lane:{LANE}", "lane:street0_0_00_1"]
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    """Every file's bytes but the wall times (``timings.json``); rerun stamps each row of a
+    ``.rrd`` with a time-based id, so these drives write none."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != "timings.json"}
+
+
+def _many(town, out, executor, rig, **kw):
+    from roadtwin_core.apps.drive import DriveOptions, run_drives
+
+    opt = DriveOptions(length_m=None, duration_s=0.3, speed_kmh=30.0, rig=rig, rrd=False)
+    return run_drives(town, out, opt, ROUTES, executor=executor, **kw)
+
+
+@pytest.fixture(scope="module")
+def tiny_rig(tmp_path_factory):
+    path = tmp_path_factory.mktemp("rig") / "tiny.toml"
+    path.write_text(TINY_RIG)
+    return path
+
+
+@pytest.fixture(scope="module")
+def serial_drives(town, tiny_rig, tmp_path_factory):
+    out = tmp_path_factory.mktemp("many") / "serial"
+    return out, _many(town, out, "serial", tiny_rig)
+
+
+def test_many_routes_one_folder_each_same_bytes_on_a_process_pool(town, tiny_rig, serial_drives, tmp_path):
+    """Two routes, one drive each in ``route_000``/``route_001``: each drives its own lane (the
+    body starts on that lane's centreline) and writes what one ``run_drive`` of that route writes;
+    a pool of two forked workers writes the same bytes as the serial executor."""
+    from roadtwin_core.apps.drive import DriveOptions, run_drive
+    from roadtwin_core.render import stage_lanes
+
+    out, res = serial_drives
+    listing = json.loads((out / "drives.json").read_text())["drives"]
+    assert [d["folder"] for d in listing] == ["route_000", "route_001"] and res["executor"] == "serial"
+    lanes = {ln.id: ln for ln in stage_lanes(town)}
+    for d, spec in zip(listing, ROUTES):
+        lane = lanes[spec.split(":")[1]]
+        start = np.loadtxt(out / d["folder"] / "trajectory.csv", delimiter=",", skiprows=1)[0, 1:3]
+        assert np.linalg.norm(start - lane.points[0]) < 0.5, (spec, start, lane.points[0])
+        assert d["samples"] == {"imu": 60, "lidar": 3, "cam": 3}
+    single = tmp_path / "single"
+    run_drive(town, single, DriveOptions(route=ROUTES[1], length_m=None, duration_s=0.3, speed_kmh=30.0,
+                                         rig=tiny_rig, rrd=False), pm=PluginManager())
+    assert _files(single) == _files(out / "route_001")
+    pooled = tmp_path / "local"
+    assert _many(town, pooled, "local", tiny_rig, workers=2)["executor"] == "local"
+    assert _files(pooled) == _files(out)
+
+
+def test_many_routes_a_bad_route_is_one_line_naming_it(town, tiny_rig, tmp_path):
+    from roadtwin_core import RoadtwinError
+    from roadtwin_core.apps.drive import DriveOptions, run_drives
+
+    off_road = tmp_path / "route.txt"
+    off_road.write_text("-120 0\n-60 0\n-60 300\n")
+    opt = DriveOptions(length_m=None, duration_s=0.3, rig=tiny_rig, rrd=False)
+    with pytest.raises(RoadtwinError, match=r"^route 1 \(.*route\.txt\): .*leaves the road"):
+        run_drives(town, tmp_path / "out", opt, [ROUTES[0], str(off_road)], executor="serial")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["route.txt"]
+
+
+@pytest.mark.slow
+def test_many_routes_on_a_local_ray_cluster_same_bytes_as_serial(town, tiny_rig, serial_drives, tmp_path):
+    """The same two drives as Ray tasks on a local two-CPU cluster: the same bytes (~40 s)."""
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        res = _many(town, tmp_path / "ray", "ray", tiny_rig)
+    finally:
+        ray.shutdown()
+    assert res["executor"] == "ray"
+    assert _files(tmp_path / "ray") == _files(serial_drives[0])

@@ -556,3 +556,52 @@ def test_a_plugin_adds_a_dataset_format(road, tmp_path):
     with pytest.raises(RoadtwinError, match="unknown format 'yolo' .*yolo_boxes"):
         run_render(road, tmp_path / "o2", RenderOptions(frames=1, size="80x50", formats="yolo",
                                                         executor="serial"), pm=pm)
+
+
+def test_frames_finished_on_threads_write_what_one_thread_writes(road, pm, tmp_path):
+    """The in-process path (a GPU device, or --executor serial) finishes and writes frames on
+    ``workers`` threads; the files and meta.json records must not depend on their number."""
+    outs, summaries = {}, {}
+    for threads in (1, 3):
+        outs[threads] = tmp_path / f"t{threads}"
+        summaries[threads] = run_render(road, outs[threads], RenderOptions(
+            frames=6, rig="survey", size="64x40", views="defects:0.5", randomize=True,
+            classmap="builtin:road_defects_br", formats="mmseg,coco,depth", executor="serial", workers=threads,
+            seed=4), pm=pm)
+    files = sorted(p.relative_to(outs[1]) for p in outs[1].rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(outs[3]) for p in outs[3].rglob("*") if p.is_file())
+    for f in files:
+        a, b = outs[1] / f, outs[3] / f
+        if f.name == "meta.json":
+            assert json.loads(a.read_text())["frames"] == json.loads(b.read_text())["frames"]
+        else:
+            assert a.read_bytes() == b.read_bytes(), f
+    coco = json.loads((outs[3] / "coco/annotations/instances_train.json").read_text())
+    assert [a["id"] for a in coco["annotations"]] == list(range(1, len(coco["annotations"]) + 1))
+    assert [a["image_id"] for a in coco["annotations"]] == sorted(a["image_id"] for a in coco["annotations"])
+    phases = summaries[3]["phase_timings_s"]
+    assert {"stage_read", "view_sampling", "randomize", "prepare", "render", "sensor", "labels", "write"} <= set(phases)
+    assert all(v >= 0 for v in phases.values())
+
+
+def test_frames_finished_in_forked_processes_write_what_the_serial_path_writes(road, pm, tmp_path, monkeypatch):
+    """On a GPU device frames render in the main process and forked processes finish and write
+    them; forced here on the CPU (the same code path but the device), it must write the serial bytes."""
+    import roadtwin_core.apps.render.run as run_mod
+
+    outs = {}
+    for name in ("serial", "local"):
+        if name == "local":
+            monkeypatch.setattr(run_mod, "_on_gpu", lambda device: True)
+        outs[name] = tmp_path / name
+        run_render(road, outs[name], RenderOptions(frames=5, rig="survey", size="64x40", views="defects:0.5",
+                                                   randomize=True, classmap="builtin:road_defects_br",
+                                                   formats="mmseg,coco", executor=name, workers=2, seed=6), pm=pm)
+    files = sorted(p.relative_to(outs["serial"]) for p in outs["serial"].rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(outs["local"]) for p in outs["local"].rglob("*") if p.is_file())
+    for f in files:
+        a, b = (outs[n] / f for n in ("serial", "local"))
+        if f.name == "meta.json":
+            assert json.loads(a.read_text())["frames"] == json.loads(b.read_text())["frames"]
+        else:
+            assert a.read_bytes() == b.read_bytes(), f

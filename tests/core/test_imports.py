@@ -84,6 +84,7 @@ _RAY_RENDER_WORKER = ("Ray's render workers import roadtwin_core.apps.render (fo
 LAZY_INTERNAL: dict[tuple[str, str], str] = {
     ("roadtwin_core/apps/render/run.py", "roadtwin_core.usd.town_reader"): "USD; " + _RAY_RENDER_WORKER,
     ("roadtwin_core/apps/render/pipeline.py", "roadtwin_core.render.ego_lane"): "scipy; " + _RAY_RENDER_WORKER,
+    ("roadtwin_core/apps/render/device_frames.py", "roadtwin_core.render.ego_lane"): "scipy; " + _RAY_RENDER_WORKER,
     ("roadtwin_core/looks/prefetch.py", "roadtwin_core.looks.cache"):
         "the texture generators (scipy.fft, ~0.1 s) load in the helper process that makes the set, not in the composer",
     ("roadtwin_core/render/rig_usd.py", "roadtwin_core.usd.town_reader"): _GPU_NO_USD,
@@ -99,6 +100,7 @@ LAZY_INTERNAL: dict[tuple[str, str], str] = {
     ("plugins/roadtwin_warp_render/renderer.py", "roadtwin_warp_render.raycast"):
         _NEEDS_WARP + "; and warp must be started quietly (start_warp) before its kernels are defined",
     ("plugins/roadtwin_warp_render/renderer.py", "roadtwin_warp_render.event_kernels"): _NEEDS_WARP,
+    ("plugins/roadtwin_warp_render/renderer.py", "roadtwin_warp_render.post"): _NEEDS_WARP,
 }
 
 

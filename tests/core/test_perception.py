@@ -1,9 +1,8 @@
-"""Class maps, dataset folders and the synthetic-to-real benchmark (bench/perception.py) on CPU."""
+"""Class maps, dataset folders and the survey rig estimate on CPU (the benchmark itself,
+bench/perception.py: tests/core/test_perception_bench.py)."""
 from __future__ import annotations
 
 import importlib.util
-import json
-import sys
 import tomllib
 from pathlib import Path
 
@@ -12,20 +11,12 @@ import pytest
 from PIL import Image
 
 from roadtwin_core import RoadtwinError
-from roadtwin_core.datasets.folders import find_pairs, load_folder, read_label
+from roadtwin_core.datasets.folders import find_pairs, load_folder
 from roadtwin_core.render.classmap import builtin_class_maps, load_class_map, parse_class_map
 from roadtwin_core.render.scene import class_names
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "tests/data/road_defects_br_tiny"
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("bench_perception", ROOT / "bench/perception.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 # ---------------------------------------------------------------------------------- class map
@@ -155,106 +146,6 @@ def test_dataset_folder_reads_both_layouts(tmp_path):
     ref = np.asarray(Image.open(sorted((TINY / "val/labels").glob("*.png"))[1]))
     assert item["image"].shape == (3, 320, 512) and item["image"].dtype == torch.float32
     assert np.array_equal(item["label"].numpy(), ref)
-
-
-# ------------------------------------------------------------------------------ the benchmark
-def make_standin_synthetic(root: Path, n: int = 4, size=(128, 80)) -> Path:
-    """A stand-in for rendered frames (MMSeg layout, class-mapped labels): a grey road trapezoid
-    (ego lane) with a dark pothole and a crack. For tests only, never for reported figures."""
-    w, h = size
-    rng = np.random.default_rng(0)
-    yy, xx = np.mgrid[0:h, 0:w]
-    for k in range(n):
-        img = np.zeros((h, w, 3), np.uint8)
-        img[:] = (150, 180, 220)
-        lab = np.zeros((h, w), np.uint8)
-        half = (yy - 0.3 * h) / h * w * 0.6
-        lane = (yy > 0.3 * h) & (np.abs(xx - w / 2) < half)
-        lab[lane], img[lane] = 1, (110, 110, 110)
-        cx, cy = rng.uniform(0.4, 0.6) * w, rng.uniform(0.6, 0.8) * h
-        hole = ((xx - cx) / 8) ** 2 + ((yy - cy) / 4) ** 2 < 1
-        lab[hole], img[hole] = 3, (40, 40, 40)
-        crack = lane & (np.abs(xx - (w / 2 + (yy - h / 2) * 0.5)) < 1)
-        lab[crack], img[crack] = 2, (60, 60, 60)
-        lab[:2, :] = 255
-        _write_pair(root, f"{k:06d}", lab, ".png", ("img_dir/train", "ann_dir/train"))
-        Image.fromarray(img).save(root / "img_dir/train" / f"{k:06d}.png")
-    return root
-
-
-@pytest.mark.parametrize("encoder", ["scratch", pytest.param("efficientnet-lite0", marks=pytest.mark.slow)])
-def test_benchmark_one_step_smoke_on_real_frames(tmp_path, capsys, encoder):
-    """Both encoders through the whole bench (the default, EfficientNet-Lite0, ~1 min on 2 CPU
-    cores: slow; its network alone is tests/core/test_segnet.py)."""
-    pytest.importorskip("torch")
-    if encoder != "scratch":
-        pytest.importorskip("efficientnet_lite_pytorch")
-    bench = _bench()
-    synth = make_standin_synthetic(tmp_path / "synth")
-    out = tmp_path / "out"
-    rc = bench.main(["run", "--real", str(TINY), "--synthetic", str(synth), "--device", "cpu", "--steps", "1",
-                     "--pretrain-steps", "1", "--batch", "2", "--width", "4", "--size", "64x40", "--seeds", "0",
-                     "--fractions", "1", "0.5", "--out", str(out), "--bootstrap", "50", "--encoder", encoder])
-    assert rc == 0
-    res = json.loads((out / "results_seed0.json").read_text())
-    assert set(res["runs"]) == {"zero-shot", "real@100%", "synth+real@100%", "real@50%", "synth+real@50%"}
-    # the arms run equal optimizer steps: (a) P + R on real, (b) P synthetic + R real
-    for frac in ("100%", "50%"):
-        assert [p["steps"] for p in res["runs"][f"real@{frac}"]["phases"]] == [1, 1]
-        assert [p["steps"] for p in res["runs"][f"synth+real@{frac}"]["phases"]] == [1, 1]
-    # per frame, sum over classes of (I + U) counts every valid pixel twice (a right pixel once in
-    # each, a wrong one in the unions of two classes)
-    val = [np.asarray(Image.open(p).resize((64, 40), Image.NEAREST)) for p in sorted((TINY / "val/labels").glob("*.png"))]
-    valid = np.array([(v != 255).sum() for v in val])
-    for run in res["runs"].values():
-        i, u = np.array(run["I"]), np.array(run["U"])
-        assert i.shape == (2, 4) and np.array_equal((i + u).sum(1), 2 * valid)
-    summary = json.loads((out / "results.json").read_text())
-    assert set(summary["gains"]) == {"synth+real@100%", "synth+real@50%"}
-    assert (out / "gains.png").stat().st_size > 0 and (out / "grid.png").stat().st_size > 0
-    assert "pothole" in capsys.readouterr().out
-
-
-def test_bad_benchmark_input_is_one_line(tmp_path, capsys):
-    pytest.importorskip("torch")
-    bench = _bench()
-    (tmp_path / "train/images").mkdir(parents=True)
-    (tmp_path / "train/labels").mkdir(parents=True)
-    assert bench.main(["train", "--real", str(tmp_path), "--device", "cpu", "--out", str(tmp_path / "o")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("error: ") and "empty" in err and "\n" not in err
-
-
-def test_fixed_subset_and_iou_table():
-    bench = _bench()
-    a = bench.subset_indices(600, 0.1, 0)
-    assert len(a) == 60 and len(set(a)) == 60 and np.array_equal(a, bench.subset_indices(600, 0.1, 0))
-    # two frames, class 3 (pothole): I 2 + 1, U 4 + 8 -> 3 / 12; class 0 absent everywhere -> NaN
-    i = np.array([[0, 5, 0, 2], [0, 5, 1, 1]])
-    u = np.array([[0, 10, 2, 4], [0, 10, 2, 8]])
-    t = bench.iou_table(i, u)
-    assert t["pothole"] == pytest.approx(0.25) and t["crack"] == pytest.approx(0.25) and t["ego_lane"] == 0.5
-    assert np.isnan(t["background"]) and t["mIoU_fg"] == pytest.approx((0.5 + 0.25 + 0.25) / 3)
-
-
-def test_bootstrap_interval_known_answers():
-    bench = _bench()
-    rng = np.random.default_rng(1)
-    f = 400
-    ia = rng.binomial(1, 0.3, (f, 4)).astype(float)
-    u = np.ones((f, 4))
-    # identical arms: no gain, and every replicate agrees
-    same = bench.bootstrap_gain(ia, u, ia, u, n_boot=300)
-    assert all(v["gain"] == 0 and v["lo"] == 0 and v["hi"] == 0 for v in same.values())
-    # with unit unions the IoU is a mean, so the gain is a mean of paired differences: the
-    # bootstrap interval must match the normal one, mean +- 1.96 sd / sqrt(F)
-    ib = np.clip(ia + rng.binomial(1, 0.15, (f, 4)), 0, 1)
-    res = bench.bootstrap_gain(ia, u, ib, u, n_boot=4000, seed=3)
-    d = ib[:, 3] - ia[:, 3]
-    half = 1.96 * d.std(ddof=1) / np.sqrt(f)
-    assert res["pothole"]["gain"] == pytest.approx(d.mean())
-    assert res["pothole"]["lo"] == pytest.approx(d.mean() - half, abs=0.12 * half)
-    assert res["pothole"]["hi"] == pytest.approx(d.mean() + half, abs=0.12 * half)
 
 
 # ------------------------------------------------------------------------------- survey rig

@@ -421,7 +421,7 @@ def test_old_reconstruct_only_contract_is_reported_and_others_load(fake_eps):
 @pytest.mark.parametrize("kind,broken,words", [
     ("planners", "plan", ["plan takes (grid, start, goal)", "collision, params, rng"]),
     ("mergers", "Params", ["Params must be a dataclass"]),
-    ("reconstructors", "produces", ["produces must be one of surface, defects, got 'mesh'"]),
+    ("reconstructors", "produces", ["produces must be one of surface, defects, materials, got 'mesh'"]),
     ("exporters", "suffix", ["suffix must be a string starting with '.'"]),
     ("renderers", "prepare", ["no method prepare()", "RendererBase"]),
     ("renderers", "render", ["render takes (scene, cameras, params), the contract calls it as (scene, cameras, params, *, look=None)"]),

@@ -14,13 +14,14 @@ import pytest
 import shapely
 from pxr import Sdf, Usd, UsdGeom, UsdSemantics
 
+from roadtwin_core import MapObject
 from roadtwin_core.errors import RoadtwinError
 from roadtwin_core.render import GroundSampler, build_render_mesh
 from roadtwin_core.render.cameras import KeepOut, lane_keep_out, sample_lane_poses
 from roadtwin_core.render.classmap import load_class_map
 from roadtwin_core.render.view_sampler import DefectTargets, chain_lanes, sample_views
 from roadtwin_core.town.prop_shapes import PROP_LABELS, PROTOTYPES, make_prototype
-from roadtwin_core.town.props import DEFAULT_RULES, PropRule, Props, load_prop_rules, place_props
+from roadtwin_core.town.props import DEFAULT_RULES, PropRule, Props, load_prop_rules, paved_surface, place_props
 from roadtwin_core.usd.layout_io import read_layout
 from roadtwin_core.usd.props import write_props
 from roadtwin_core.usd.stage import new_layer
@@ -275,3 +276,33 @@ def test_rules_file_adds_to_the_defaults(tmp_path):
     rules = load_prop_rules(path)
     assert [r.name for r in rules] == [r.name for r in DEFAULT_RULES if r.name != "trees"] + ["trees"]
     assert rules[-1].prototypes == {"tree_conifer": 1.0} and rules[-1].offset_m == (5.0, 9.0)
+
+
+def test_seeded_rules_keep_clear_of_map_objects(layout):
+    """Map objects (an OpenDRIVE map's trees) are placed first and the rules fill around them: no
+    rule-placed prop's clearance disc overlaps a map tree's (discs computed here from the
+    prototypes' clearance and the instance scales). Without the map trees the same rules do put
+    props there, so the check can fail."""
+    ring = paved_surface(layout.segments).buffer(6.0).exterior
+    spots = [ring.interpolate(d) for d in np.arange(0.0, ring.length, 25.0)]
+    trees = [MapObject(f"t{k}", "object", "tree", (p.x, p.y, 0.0), size=(0, 0, 8.0)) for k, p in enumerate(spots)]
+    rules = tuple(r for r in DEFAULT_RULES if r.place in ("roadside", "chain"))
+    tree = make_prototype("tree_round")
+    height = np.ptp(np.concatenate([p.vertices for p in tree.parts])[:, 2])
+    r_tree = tree.clearance_m * 8.0 / height                             # scaled to the map's 8 m
+
+    def overlaps(props):
+        hits = 0
+        for g in props.groups:
+            if g.rule == "map_objects" or g.name == "Wires" or g.place != "roadside":   # chains: other discs
+                continue
+            radii = np.array([p.clearance_m for p in g.prototypes])[g.proto_indices] * g.scales[:, :2].max(axis=1)
+            for tree in trees:
+                d = np.hypot(g.positions[:, 0] - tree.position[0], g.positions[:, 1] - tree.position[1])
+                hits += int((d < 0.99 * (radii + r_tree)).sum())
+        return hits
+
+    with_map = place_props(layout.segments, rules, flat, 3, "t", ground=False, map_objects=trees)
+    assert with_map.map_objects["placed"] == len(trees) > 20
+    assert overlaps(with_map) == 0
+    assert overlaps(place_props(layout.segments, rules, flat, 3, "t", ground=False)) > 0

@@ -94,6 +94,29 @@ def test_each_lookalike_is_flush_and_declares_itself(pm):
             assert 0.0 <= m.vertices[:, 2].min() and m.vertices[:, 2].max() <= 0.005, t   # flush or a few mm
 
 
+@pytest.mark.parametrize("kind, params, area", [
+    ("worn_paint", {"length_m": 2.0, "width_m": 0.15}, 2.0 * 0.15),                  # a dash: length x width
+    ("patch_seam", {"length_m": 1.5, "width_m": 1.0, "sides": 1, "band_m": 0.05}, 1.5 * 0.05),
+    # mitred corners: the outer square gained equals the inner one lost, so centreline x band
+    ("patch_seam", {"length_m": 1.5, "width_m": 1.0, "sides": 2, "band_m": 0.05}, (1.5 + 1.0) * 0.05),
+    ("patch_seam", {"length_m": 1.5, "width_m": 1.0, "sides": 3, "band_m": 0.05}, (2 * 1.5 + 1.0) * 0.05),
+])
+def test_footprint_areas_match_closed_forms(pm, kind, params, area):
+    dtype = pm.get("defect_types", kind)
+    m = dtype.generate(dataclasses.replace(dtype.Params(), **params), np.random.default_rng(0), kind)
+    assert m.area_m2 == pytest.approx(area, rel=0.01), kind
+
+
+def test_smooth_blob_is_its_ellipse():
+    """Roughness 0: an ellipse, simplified by at most a quarter of the 5 cm mesh spacing, so it
+    loses at most perimeter x 1.25 cm of area (inscribed: never gains)."""
+    a, b = 0.5, 0.3
+    stain = roadtwin_lookalikes.OilStain()
+    m = stain.generate(stain.Params(length_m=2 * a, width_m=2 * b, roughness=0.0), np.random.default_rng(0), "o")
+    perimeter = math.pi * (3 * (a + b) - math.sqrt((3 * a + b) * (a + 3 * b)))       # Ramanujan
+    assert math.pi * a * b - perimeter * 0.05 / 4 <= m.area_m2 <= math.pi * a * b
+
+
 def test_each_lookalike_composes_validates_and_is_labelled_road(town):
     assert not [f for f in validate_stage(town) if f.severity == "Error"]
     stage = Usd.Stage.Open(str(town))

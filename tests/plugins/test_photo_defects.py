@@ -20,10 +20,10 @@ import triangle
 from pxr import Usd, UsdGeom, UsdShade
 
 from photo_scene import CLASSES, SURVEY, ground_texture, render_photo, save_pair
-from roadtwin_core import ComposeRules, RoadSegment, TownLayout
+from roadtwin_core import ComposeRules, RoadSegment, RoadtwinError, TownLayout
 from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
-from roadtwin_photo import PhotoDefects, PhotoDefectsParams
+from roadtwin_photo import PhotoDefects, PhotoDefectsParams, PhotoRig
 from roadtwin_photo.patch import to_road_albedo
 
 
@@ -159,3 +159,29 @@ def test_patch_colour_becomes_an_albedo_like_the_towns_asphalt():
     out = to_road_albedo(colour, ring, 0.12)
     assert linear(out[0, 0, 0]) == pytest.approx(0.12, abs=0.004)
     assert linear(out[20, 20, 0]) / linear(out[0, 0, 0]) == pytest.approx(linear(100) / linear(200), rel=0.03)
+
+
+def test_lane_lines_give_each_frame_its_rig(tmp_path):
+    """A photo taken through another rig than the preset (pitch -19 deg, 1.9 m instead of -25.1,
+    2.33): with lane_width_m the frame's pitch and height come from its 3.5 m lane's edges, and the
+    defect's footprint is right again (area within 3 %, centroid within 5 cm); with the preset it is not."""
+    truth = PhotoRig("other", 512, 320, 60.0, 1.9, -19.0)
+    centre, axes = (7.0, 0.2), (0.5, 0.35)
+    image, label = render_photo(truth, centre, axes)
+    vv, uu = np.mgrid[0:640, 0:1024].astype(float)
+    xy, ok = truth.backproject(uu.ravel(), vv.ravel(), 1024, 640)
+    in_lane = (ok & (np.abs(np.nan_to_num(xy[:, 1], nan=99.0)) <= 1.75)).reshape(640, 1024)
+    label = np.where(label == 3, 3, np.where(in_lane, 1, 0)).astype(np.uint8)
+    img = save_pair(tmp_path, "frame", image, label)
+    inputs = {"images": [img], "labels": tmp_path / "labels", "classes": CLASSES, "rig": SURVEY, "license": "CC0",
+              "lane_classes": {1: "ego_lane"}}
+    true_area = np.pi * axes[0] * axes[1]
+    inst = PhotoDefects().run(inputs, PhotoDefectsParams(lane_width_m=3.5)).instances[0]
+    rig = inst.model.params["rig"]
+    assert rig["pitch_deg"] == pytest.approx(-19.0, abs=0.3) and rig["height_m"] == pytest.approx(1.9, rel=0.03)
+    assert inst.area_m2 == pytest.approx(true_area, rel=0.03)
+    assert np.hypot(*(inst.patch.centroid - centre)) < 0.05
+    preset = PhotoDefects().run(inputs).instances[0]
+    assert abs(preset.area_m2 / true_area - 1) > 0.1            # the preset's rig puts it elsewhere, at another size
+    with pytest.raises(RoadtwinError, match="lane class"):
+        PhotoDefects().run({**inputs, "lane_classes": {}}, PhotoDefectsParams(lane_width_m=3.5))

@@ -18,6 +18,7 @@ from ...contracts import configured
 from ...errors import RoadtwinError
 from ...executors import SerialExecutor, make_executor
 from ...looks.prefetch import TexturePrefetch, TexturesNow
+from ...looks.road_textures import RoadLooks, resolve_road_looks
 from ...model import ComposeRules, DefectModel, Placement, TownLayout
 from ...params import apply_params, make_params
 from ...plugins import PluginManager, get_plugin_manager
@@ -119,10 +120,13 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             ray_address: str | None = None, workers: int | None = None,
             library_dir: str | Path | None = None, merger_params: dict[str, Any] | None = None,
             texture_writer: Callable[[Path, int], dict] | None = None,
-            props: str | Path | None = "default") -> ComposeResult:
+            props: str | Path | None = "default", road_textures: str | Path | None = None,
+            road_material: str | None = None) -> ComposeResult:
     """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's.
     ``props``: the roadside world (``layers/props.usda``): ``"default"`` (the built-in rules),
     ``"none"`` (no props layer) or a TOML rules file (:func:`resolve_prop_rules`).
+    ``road_textures``: a folder of road materials (``roadtwin reconstruct photo-surfaces``), each
+    offered as a ``roadMaterial`` variant; ``road_material``: the variant selected (default asphalt).
     ``texture_writer``: ``writer(folder, seed) -> specs`` to write the textures instead of the cached
     set, which is otherwise made (or copied from the cache) in a helper process while the town is
     placed and merged.
@@ -134,6 +138,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     process: the preview then runs here, at the end."""
     t0 = time.perf_counter()
     prop_rules = resolve_prop_rules(props)   # a bad rules file: one line before any work
+    road_looks = resolve_road_looks(road_textures, road_material)
     preview_here = pm is not None
     with contextlib.ExitStack() as stack:
         # Started first: the helpers' interpreters boot while the layout is read.
@@ -157,7 +162,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
                                        else TexturePrefetch(rules.seed, texture_side, scratch_dir(outdir, "textures")))
         result = _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
                           executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir,
-                          prop_rules=prop_rules)
+                          prop_rules=prop_rules, road_looks=road_looks)
         for side in (texture_side, preview_side):    # what they printed, now that the run succeeded
             if side is not None:
                 side.replay_output()
@@ -200,7 +205,7 @@ class _HereOrThere:
 def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules, pm: PluginManager, merger_impl,
              report, textures: TexturePrefetch | TexturesNow, previewer: _HereOrThere | None, t0: float, *,
              executor: str, ray_address, workers, library_dir,
-             prop_rules: tuple[PropRule, ...] = ()) -> ComposeResult:
+             prop_rules: tuple[PropRule, ...] = (), road_looks: RoadLooks = RoadLooks()) -> ComposeResult:
     runner = make_executor(executor, ray_address, workers)
     # Library and markings on the local cores only: a Ray map starts and stops a cluster, costing
     # more than they do.
@@ -257,6 +262,7 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
                 "merger": rules.merger, "mergerParams": json.dumps(merger_values, sort_keys=True),
                 "defectCount": len(placements)}
         materials = textures.collect(tmp / "textures")
+        materials.update(road_looks.copy_into(tmp / "textures"))
         t_textures = time.perf_counter()
 
         def start_preview():
@@ -266,7 +272,7 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
 
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
                                          library_files, info, markings, materials, semantic_classes=semantic,
-                                         props=props),
+                                         props=props, **road_looks.town_fields()),
                           on_looks=start_preview if previewer is not None else None)
         report("write", 1, 1)
         t_written = time.perf_counter()
@@ -283,6 +289,8 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
         summary["merger_params"] = merger_values
         summary["markings"] = len(markings)
         summary["props"] = {"instances": props.count if props else 0, "by_rule": props.by_rule() if props else {}}
+        if props and props.map_objects:    # only a layout with map objects (others: the same bytes as before)
+            summary["props"]["map_objects"] = props.map_objects
         summary["materials"] = len(materials)
         if previewer is not None:
             summary["timings_s"].update({k: round(v, 3) for k, v in previewer.finish(pm).items()})
@@ -345,7 +353,7 @@ def place_town_props(layout: TownLayout, prop_rules: tuple[PropRule, ...], surf,
         if id(p.model) not in reach:
             reach[id(p.model)] = float(np.hypot(*np.asarray(p.model.footprint, np.float64)[:, :2].T).max())
     taken = np.array([(p.x, p.y, reach[id(p.model)] * max(p.scale[:2])) for p in placements]).reshape(-1, 3)
-    return place_props(layout.segments, prop_rules, height, seed, owner, taken=taken)
+    return place_props(layout.segments, prop_rules, height, seed, owner, taken=taken, map_objects=layout.objects)
 
 
 def _bounds(layout: TownLayout, pad: float) -> tuple[float, float, float, float]:

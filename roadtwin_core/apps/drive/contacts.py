@@ -7,11 +7,15 @@ sample with any patch point inside to the last (gaps under 30 ms closed).
 """
 from __future__ import annotations
 
+import csv
+import json
+from pathlib import Path
+
 import numpy as np
 import shapely
 from shapely.ops import unary_union
 
-__all__ = ["WHEELS", "defect_footprints", "contact_events"]
+__all__ = ["WHEELS", "defect_footprints", "contact_events", "write_events"]
 
 WHEELS = ("FL", "FR", "RL", "RR")
 
@@ -72,3 +76,13 @@ def contact_events(traj, vehicle, footprints: dict, defect_types: dict, merge_ga
                                "tire_force_max_n": float(np.nanmax(traj.tire_f[i0:i1 + 1, w]))})
     events.sort(key=lambda e: (e["t_entry_s"], e["wheel"]))
     return events
+
+
+def write_events(folder: Path, events: list[dict]) -> None:
+    (folder / "contacts.json").write_text(json.dumps(events, indent=2))
+    keys = ["wheel", "defect", "defect_type", "t_entry_s", "t_exit_s", "s_entry_m", "speed_kmh", "tire_force_min_n",
+            "tire_force_max_n"]
+    with open(folder / "contacts.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys)
+        w.writeheader()
+        w.writerows(events)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -18,7 +19,7 @@ from scipy.spatial import cKDTree
 from ...errors import RoadtwinError
 from ...vehicle import RoadMesh, SimParams, VehicleRun
 
-__all__ = ["CORRIDOR_M", "Trajectory", "drive_vehicle", "crop_mesh", "euler_matrix"]
+__all__ = ["CORRIDOR_M", "Trajectory", "drive_vehicle", "crop_mesh", "euler_matrix", "write_trajectory"]
 
 CORRIDOR_M = 8.0   # the road within this distance of the route is all the vehicle ever touches
 
@@ -59,9 +60,19 @@ class Trajectory:
         t = np.clip(np.asarray(t, dtype=np.float64), self.t[0], self.t[-1])
         return np.stack([np.interp(t, self.t, arr[:, k]) for k in range(arr.shape[1])], axis=-1)
 
+    def _cached(self, name: str, make):
+        """An array derived from the whole trajectory, made once (a sensor asks for poses
+        tens of thousands of times a drive: remaking it each time made the drive quadratic)."""
+        value = self.__dict__.get(name)
+        if value is None:
+            value = self.__dict__[name] = make()
+        return value
+
     def pose_at(self, t) -> np.ndarray:
         """(..., 4, 4) body-to-world at times ``t`` (linear in x y z and in the angles)."""
-        p = self._interp(np.column_stack([self.pose[:, :5], np.unwrap(self.pose[:, 5])]), t)
+        unwrapped = self._cached("_pose_unwrapped",
+                                 lambda: np.column_stack([self.pose[:, :5], np.unwrap(self.pose[:, 5])]))
+        p = self._interp(unwrapped, t)
         m = np.zeros(p.shape[:-1] + (4, 4))
         m[..., :3, :3] = euler_matrix(p[..., 3], p[..., 4], p[..., 5])
         m[..., :3, 3] = p[..., :3]
@@ -70,8 +81,7 @@ class Trajectory:
 
     def velocity_at(self, t) -> np.ndarray:
         """(..., 3) world velocity of the CG."""
-        v = np.gradient(self.pose[:, :3], self.t, axis=0)
-        return self._interp(v, t)
+        return self._interp(self._cached("_velocity", lambda: np.gradient(self.pose[:, :3], self.t, axis=0)), t)
 
     def imu_truth(self, offset_body: np.ndarray, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray]:
         """Mean specific force (body frame) at the body point ``offset_body`` and mean body rate
@@ -81,10 +91,8 @@ class Trajectory:
         i1 = int(np.searchsorted(self.t, t1 + 1e-9, side="right"))
         i0 = min(i0, len(self.t) - 1)
         m = slice(i0, max(i1, i0 + 1))
-        if getattr(self, "_alpha", None) is None:
-            self._alpha = np.gradient(self.gyro, self.t, axis=0)
         w = self.gyro[m]
-        alpha = self._alpha[m]
+        alpha = self._cached("_alpha", lambda: np.gradient(self.gyro, self.t, axis=0))[m]
         r = np.asarray(offset_body, dtype=np.float64)
         f = self.acc[m] + np.cross(alpha, r) + np.cross(w, np.cross(w, r))
         return f.mean(0), w.mean(0)
@@ -163,3 +171,10 @@ def drive_vehicle(backend, road: RoadMesh, vehicle, route, profile, sim: SimPara
     meta = {"backend": backend.name, "stretches": len(chunks), "physics_wall_s": wall, "imu_dt": imu_dt,
             "dt": sim.dt_s, "triangles": int(len(road.faces))}
     return Trajectory(meta=meta, **cat)
+
+
+def write_trajectory(path: Path, traj) -> None:
+    step = max(1, int(round(0.01 / float(np.median(np.diff(traj.t))))))
+    a = np.column_stack([traj.t, traj.pose, traj.s, traj.speed, traj.acc, traj.gyro])[::step]
+    np.savetxt(path, a, delimiter=",", fmt="%.9g", comments="",
+               header="t_s,x,y,z,roll,pitch,yaw,s_m,speed_mps,f_x,f_y,f_z,w_x,w_y,w_z")

@@ -7,7 +7,6 @@ order (ties in rig order) and streamed to the writers, so a long drive never hol
 """
 from __future__ import annotations
 
-import csv
 import importlib.util
 import json
 import math
@@ -26,11 +25,12 @@ from ...usd.town_reader import load_town
 from ...vehicle import RoadMesh, SimParams, VehicleParams, load_full_vehicle
 from ...vehicle.roads import Occupancy
 from .bag import BagWriter
-from .contacts import contact_events, defect_footprints
-from .motion import CORRIDOR_M, crop_mesh, drive_vehicle
+from .contacts import contact_events, defect_footprints, write_events
+from .motion import CORRIDOR_M, crop_mesh, drive_vehicle, write_trajectory
 from .rig import load_rig, mount, select
 from .route import build_route, check_on_road, constant_speed, read_recommendations, speed_profile, wheel_hits
 from .rrd import RrdWriter
+from .traffic import place_traffic
 from .world import World
 
 __all__ = ["DriveOptions", "run_drive", "SensorState"]
@@ -42,7 +42,8 @@ class DriveOptions:
     or a poses file) and how far or how long, the speed or a sweep's speed profile, the vehicle
     file and physics backend, the rig file and which of its sensors, the renderer (and its
     ``--param`` values) for the cameras, which outputs; ``dt_s`` the physics step, ``truth_rate_hz``
-    the rate of the ground-truth pose (``/tf``, ``/ground_truth/odom``, rerun)."""
+    the rate of the ground-truth pose (``/tf``, ``/ground_truth/odom``, rerun); ``traffic`` other
+    vehicles on the lanes at ``traffic_speed_kmh`` (kinematic: seen, not felt; :mod:`.traffic`)."""
 
     route: str = "auto"
     length_m: float | None = 100.0
@@ -61,6 +62,8 @@ class DriveOptions:
     dt_s: float = 1e-3
     truth_rate_hz: float = 100.0
     render_params: dict = field(default_factory=dict)
+    traffic: int = 0
+    traffic_speed_kmh: float = 30.0
 
 
 class SensorState:
@@ -116,6 +119,10 @@ def check_options(opt: DriveOptions) -> None:
     if opt.duration_s is not None and not (math.isfinite(opt.duration_s) and 0.1 <= opt.duration_s <= 36000.0):
         raise RoadtwinError(f"drive: --duration must be in [0.1, 36000] s, got {opt.duration_s}")
     constant_speed(opt.speed_kmh)
+    if isinstance(opt.traffic, bool) or not isinstance(opt.traffic, int) or not 0 <= opt.traffic <= 200:
+        raise RoadtwinError(f"drive: --traffic must be an integer in [0, 200], got {opt.traffic!r}")
+    if not (math.isfinite(opt.traffic_speed_kmh) and 0.0 <= opt.traffic_speed_kmh <= 200.0):
+        raise RoadtwinError(f"drive: --traffic-speed must be in [0, 200] km/h, got {opt.traffic_speed_kmh}")
     if not (math.isfinite(opt.truth_rate_hz) and 0.0 < opt.truth_rate_hz <= 1000.0):
         raise RoadtwinError(f"drive: truth_rate_hz must be in (0, 1000] Hz, got {opt.truth_rate_hz}")
     for wanted, package, what, flag in ((opt.bag, "rosbags", "the ROS 2 bag", "--no-bag"),
@@ -124,9 +131,19 @@ def check_options(opt: DriveOptions) -> None:
             raise RoadtwinError(f"drive: {what} needs {package} (pip install 'roadtwin[all]'), or give {flag}")
 
 
-def prepare_drive(stage: Path, opt: DriveOptions, pm=None) -> dict:
+def load_stage(stage: Path, needs_render: bool) -> dict:
+    """What every drive on ``stage`` shares (the town, its collision mesh, defects, lanes and
+    render mesh): loaded once per process by ``run_drives``, whatever the number of routes."""
+    town = load_town(stage, looks=needs_render)
+    verts, faces = town.collision_mesh()
+    return {"town": town, "road": RoadMesh(verts, faces, f"{stage.name} collision"), "defects": _defect_table(town),
+            "lanes": stage_lanes(stage), "render_mesh": build_render_mesh(town)}
+
+
+def prepare_drive(stage: Path, opt: DriveOptions, pm=None, loaded: dict | None = None) -> dict:
     """Everything that can fail on bad input, before any output is touched: the options, files
-    and plugins first, then the town (the route on its road, the speed profile's defects)."""
+    and plugins first, then the town (the route on its road, the speed profile's defects).
+    ``loaded``: a :func:`load_stage` result to reuse (its renderer scene is kept in it)."""
     check_options(opt)
     pm = pm or get_plugin_manager()
     stage = Path(stage)
@@ -145,31 +162,36 @@ def prepare_drive(stage: Path, opt: DriveOptions, pm=None) -> dict:
         else RenderParams()
     sim = SimParams(dt_s=opt.dt_s, imu_rate_hz=1.0 / opt.dt_s, device=opt.device).check("drive")
     t0 = time.perf_counter()
-    town = load_town(stage, looks=needs_render)
-    verts, faces = town.collision_mesh()
-    road = RoadMesh(verts, faces, f"{stage.name} collision")
-    defects = _defect_table(town)
+    loaded = loaded if loaded is not None else load_stage(stage, needs_render)
+    town, road, defects = loaded["town"], loaded["road"], loaded["defects"]
     half_track, half_tire = vehicle.track_front_m / 2, vehicle.tire_width_m / 2
-    route = build_route(opt.route, stage_lanes(stage), defects, opt.length_m, half_track, half_tire)
-    check_on_road(route, Occupancy(road.vertices, road.faces), half_track, half_tire)
+    route = build_route(opt.route, loaded["lanes"], defects, opt.length_m, half_track, half_tire)
+    if "occupancy" not in loaded:
+        loaded["occupancy"] = Occupancy(road.vertices, road.faces)
+    check_on_road(route, loaded["occupancy"], half_track, half_tire)
     hits = wheel_hits(route, defects, half_track, half_tire)
     profile = (speed_profile(recommended, hits, opt.speed_kmh, opt.speed_profile.name) if recommended is not None
                else constant_speed(opt.speed_kmh))
     # footprint polygons (contacts, the rerun map) only for the defects the drive can reach
     footprints = defect_footprints(town, _near_route(defects, route, CORRIDOR_M))
-    rmesh = build_render_mesh(town)
+    world = loaded.get("world")
+    if world is None or world.renderer is not renderer or world.source_params != rparams:
+        world = loaded["world"] = World(loaded["render_mesh"], renderer, rparams)
+    world.set_traffic(place_traffic(opt.traffic, loaded["lanes"], route, opt.traffic_speed_kmh / 3.6, world.ground_z)
+                      if opt.traffic else None)
     return {"town": town, "road": road, "footprints": footprints, "route": route, "profile": profile, "hits": hits,
             "vehicle": vehicle, "sensors": sensors, "backend": backend, "sim": sim, "rig": rig_name,
-            "world": World(rmesh, renderer, rparams), "load_s": time.perf_counter() - t0}
+            "world": world, "load_s": time.perf_counter() - t0}
 
 
-def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None) -> dict:
+def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None, loaded: dict | None = None) -> dict:
     """Drive ``stage`` into the folder ``out`` (replaced whole, or left as it was on an error):
     ``bag/`` (ROS 2, MCAP), ``drive.rrd``, ``contacts.json``/``.csv``, ``trajectory.csv``, one
     ``<imu>.csv`` per IMU, ``frames.json`` (camera frames: time, sub-frames, pose) and
-    ``summary.json``. Returns the summary plus ``events`` and the ``trajectory``."""
+    ``summary.json`` (the same bytes for the same inputs) and ``timings.json`` (wall times).
+    Returns the summary plus ``timings_s``, ``events`` and the ``trajectory``."""
     progress = progress or (lambda msg: None)
-    ctx = prepare_drive(stage, opt, pm)
+    ctx = prepare_drive(stage, opt, pm, loaded)
     timings = {"load_s": ctx["load_s"]}
     t0 = time.perf_counter()
     road = crop_mesh(ctx["road"], ctx["route"].xy)
@@ -212,6 +234,7 @@ def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None)
                     rrd.write_truth(t, pose)
                 continue
             s = sensors[i]
+            world.time = t
             ts = time.perf_counter()
             msg = s.sample(SensorState(t, traj), world)
             per_sensor_s[s.id] += time.perf_counter() - ts
@@ -230,8 +253,8 @@ def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None)
             bag.close()
         if rrd:
             rrd.close()
-        _write_events(tmp, events)
-        _write_trajectory(tmp / "trajectory.csv", traj)
+        write_events(tmp, events)
+        write_trajectory(tmp / "trajectory.csv", traj)
         for sid, rows in samples_keep.items():
             np.savetxt(tmp / f"{sid}.csv", np.array(rows).reshape(-1, 7), delimiter=",", fmt="%.9g",
                        header="t_s,ax,ay,az,gx,gy,gz", comments="")
@@ -239,32 +262,26 @@ def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None)
         summary = {"stage": str(stage), "route": ctx["route"].source, "route_length_m": ctx["route"].length,
                    "driven_m": float(traj.s[-1]), "duration_s": traj.duration, "speed_profile": ctx["profile"].source,
                    "vehicle": ctx["vehicle"].name, "backend": opt.backend, "rig": ctx["rig"],
-                   "sensors": {s.id: {"type": s.type, "rate_hz": s.rate_hz, "samples": counts[s.id],
-                                      "wall_s": per_sensor_s[s.id]} for s in sensors},
+                   "sensors": {s.id: {"type": s.type, "rate_hz": s.rate_hz, "samples": counts[s.id]}
+                               for s in sensors},
+                   "traffic": [{"instance": i, "lane": v.lane.id, "s0_m": v.s0, "speed_kmh": v.speed_mps * 3.6}
+                               for i, v in zip(getattr(world, "vehicle_instances", []),
+                                               world.traffic.vehicles if world.traffic else [])],
                    "contacts": len(events), "defects_in_wheel_tracks": [h["id"] for h in ctx["hits"]],
                    "instances": {str(k): v for k, v in world.instances.items()},
-                   "classes": world.class_names, "physics": traj.meta, "timings_s": timings,
+                   "classes": world.class_names,
+                   "physics": {k: v for k, v in traj.meta.items() if k != "physics_wall_s"},
                    "bag_topics": dict(sorted(bag.counts.items())) if bag else {},
                    "files": {"bag": "bag/" if bag else None, "rerun": "drive.rrd" if rrd else None,
-                              "contacts": ["contacts.json", "contacts.csv"], "trajectory": "trajectory.csv"}}
+                              "contacts": ["contacts.json", "contacts.csv"], "trajectory": "trajectory.csv",
+                              "timings": "timings.json"}}
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+        timings["physics_backend_s"] = traj.meta.get("physics_wall_s")
+        timings["per_sensor_s"] = per_sensor_s
+        (tmp / "timings.json").write_text(json.dumps(timings, indent=2, default=float))
+    for sid, wall in per_sensor_s.items():
+        summary["sensors"][sid]["wall_s"] = wall
+    summary["timings_s"] = timings
     summary["events"] = events
     summary["trajectory"] = traj
     return summary
-
-
-def _write_events(folder: Path, events: list[dict]) -> None:
-    (folder / "contacts.json").write_text(json.dumps(events, indent=2))
-    keys = ["wheel", "defect", "defect_type", "t_entry_s", "t_exit_s", "s_entry_m", "speed_kmh", "tire_force_min_n",
-            "tire_force_max_n"]
-    with open(folder / "contacts.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        w.writerows(events)
-
-
-def _write_trajectory(path: Path, traj) -> None:
-    step = max(1, int(round(0.01 / float(np.median(np.diff(traj.t))))))
-    a = np.column_stack([traj.t, traj.pose, traj.s, traj.speed, traj.acc, traj.gyro])[::step]
-    np.savetxt(path, a, delimiter=",", fmt="%.9g", comments="",
-               header="t_s,x,y,z,roll,pitch,yaw,s_m,speed_mps,f_x,f_y,f_z,w_x,w_y,w_z")

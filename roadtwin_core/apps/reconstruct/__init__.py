@@ -13,8 +13,9 @@ command does::
 from .inputs import (ROAD_LABELS, DefectInputs, PhotoInputs, PhotoSet, SurfaceInputs, check_defect_inputs,
                      check_photo_inputs, check_surface_inputs)
 from .run import (DefectReconstruction, PhotoReconstruction, SurfaceReconstruction, reconstruct_defects,
-                  reconstruct_photos, reconstruct_surface)
+                  reconstruct_photo_surfaces, reconstruct_photos, reconstruct_surface)
 
 __all__ = ["DefectInputs", "DefectReconstruction", "PhotoInputs", "PhotoReconstruction", "PhotoSet", "ROAD_LABELS",
            "SurfaceInputs", "SurfaceReconstruction", "check_defect_inputs", "check_photo_inputs",
-           "check_surface_inputs", "reconstruct_defects", "reconstruct_photos", "reconstruct_surface"]
+           "check_surface_inputs", "reconstruct_defects", "reconstruct_photo_surfaces", "reconstruct_photos",
+           "reconstruct_surface"]

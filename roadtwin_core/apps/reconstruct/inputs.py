@@ -25,7 +25,7 @@ from ...render.classmap import ClassMap, load_class_map
 
 __all__ = ["IMAGE_SUFFIXES", "MASK_SUFFIXES", "RIG_OVERRIDES", "ROAD_LABELS", "DefectInputs", "PhotoInputs",
            "PhotoSet", "SurfaceInputs", "check_defect_inputs", "check_photo_inputs", "check_surface_inputs",
-           "defect_classes", "photo_rig"]
+           "defect_classes", "photo_rig", "road_classes"]
 
 ROAD_LABELS = (40, 44)   # SemanticKITTI road, parking: what a labelled frame keeps as road by default
 MASK_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")   # images a --masks folder contributes
@@ -156,10 +156,12 @@ class PhotoSet:
     rig: dict[str, Any]                           # name, width, height (px), hfov_deg, height_m, pitch_deg, roll_deg
     license: str | None = None
     classmap_source: str = "class map"            # for messages
+    lane_classes: dict[int, str] = field(default_factory=dict)   # class id -> name of the lane (road_classes)
 
     def as_dict(self) -> dict[str, Any]:
         return {"images": list(self.images), "labels": self.labels, "classes": dict(self.classes),
-                "rig": dict(self.rig), "license": self.license, "classmap_source": self.classmap_source}
+                "rig": dict(self.rig), "license": self.license, "classmap_source": self.classmap_source,
+                "lane_classes": dict(self.lane_classes)}
 
 
 def defect_classes(classmap: ClassMap, defect_types: Collection[str]) -> dict[int, tuple[str, str]]:
@@ -171,6 +173,17 @@ def defect_classes(classmap: ClassMap, defect_types: Collection[str]) -> dict[in
         if label in defect_types and cls in classmap.classes:
             out.setdefault(classmap.classes.index(cls), (cls, label))
     return dict(sorted(out.items()))
+
+
+def road_classes(classmap: ClassMap) -> dict[int, str]:
+    """{dataset class id: class name} of the classes a photo shows plain road in: the class the
+    roadtwin label ``driving`` maps to inside the ego mask (an ``ego`` rule: for
+    ``road_defects_br`` the ego lane) or else by its plain entry, unless that is the class of
+    everything unnamed (``background`` holds sky and verge too)."""
+    cls = classmap.ego.get("driving") or classmap.plain.get("driving")
+    if cls is None or cls not in classmap.classes or (cls == classmap.unknown and "driving" not in classmap.ego):
+        return {}
+    return {classmap.classes.index(cls): cls}
 
 
 def photo_rig(preset: str, overrides: Mapping[str, float] | None = None) -> dict[str, Any]:
@@ -232,4 +245,5 @@ def check_photo_inputs(inputs: PhotoInputs, defect_types: Collection[str]) -> Ph
     if not classes:
         raise RoadtwinError(f"{cmap.source}: class map {cmap.name!r} has no defect class (none of its classes "
                             f"{', '.join(cmap.classes)} is filled from a defect type): nothing to reconstruct")
-    return PhotoSet(images, labels, classes, photo_rig(inputs.rig, inputs.rig_overrides), inputs.license, cmap.source)
+    return PhotoSet(images, labels, classes, photo_rig(inputs.rig, inputs.rig_overrides), inputs.license, cmap.source,
+                    road_classes(cmap))

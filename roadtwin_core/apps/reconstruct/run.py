@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from ...atomic import output_path
 from ...errors import RoadtwinError
@@ -22,7 +22,7 @@ from .inputs import (DefectInputs, PhotoInputs, SurfaceInputs, check_defect_inpu
                      check_surface_inputs)
 
 __all__ = ["DefectReconstruction", "PhotoReconstruction", "SurfaceReconstruction", "reconstruct_defects",
-           "reconstruct_photos", "reconstruct_surface"]
+           "reconstruct_photo_surfaces", "reconstruct_photos", "reconstruct_surface"]
 
 SURFACE_SUFFIXES = (".usda", ".usd", ".usdc")
 
@@ -90,6 +90,23 @@ def reconstruct_photos(inputs: PhotoInputs, out: str | Path, *, reconstructor: s
     rec = _reconstructor(pm, reconstructor, "defects", "defects")
     checked = _params(rec, reconstructor, {}, params)
     result = rec.run(photos.as_dict(), checked)
+    return PhotoReconstruction(result, rec.write(result, out), len(photos.images))
+
+
+def reconstruct_photo_surfaces(inputs: PhotoInputs, out: str | Path, *, reconstructor: str = "photo_surfaces",
+                               params: dict[str, Any] | None = None, pm: PluginManager | None = None,
+                               progress: Callable[[int, int], None] | None = None) -> PhotoReconstruction:
+    """Labelled road photos + their camera rig -> a folder ``out`` (replaced atomically) of
+    seamless road materials cut from their defect-free road (``compose --road-textures`` reads
+    it). The plugin reads what :class:`PhotoSet` gives, plus ``road_classes`` (the class map's
+    road: :func:`~.inputs.road_classes`) and ``progress(done, total)`` over the frames."""
+    out = Path(out)
+    output_path(out, "dir")
+    pm = pm or get_plugin_manager()
+    photos = check_photo_inputs(inputs, defect_types(pm))
+    rec = _reconstructor(pm, reconstructor, "materials", "road materials")
+    checked = _params(rec, reconstructor, {}, params)
+    result = rec.run({**photos.as_dict(), "road_classes": photos.lane_classes, "progress": progress}, checked)
     return PhotoReconstruction(result, rec.write(result, out), len(photos.images))
 
 

@@ -23,8 +23,13 @@ executor writes the same bytes. ``--events`` adds a continuous drive along one l
 m/s, ``--event-rate`` Hz, ``--event-frames`` frames) fed to the event camera simulator.
 Everything is checked before the output directory is touched (size, formats, weather, renderer,
 stage, poses, rig, views, class map) and the directory is written whole or not at all.
-The renderer is a plugin, found by name (``--renderer``, default ``warp``). Workers run
-``pipeline.render_chunk``; the main process only writes (``writers``).
+The renderer is a plugin, found by name (``--renderer``, default ``warp``). On the CPU, worker
+processes run ``pipeline.render_chunk``; on a GPU device (and with ``--executor serial``) frames
+render in this process while ``--workers`` processes (GPU) or threads (serial) finish and write
+them (``frame_sink``: the camera model, labels and file encoding are the CPU's share of a GPU
+render; a renderer with ``render_finished`` runs the camera model and the ego-lane labels on a
+CUDA device instead, ``device_frames``: other noise bytes than the CPU's, same seed same bytes);
+frames are recorded in order either way. ``phase_timings_s`` in the summary sums each phase's seconds.
 
 A run has four parts: the options checked (:func:`check_options`), the scene loaded
 (:func:`load_scene`), the frames planned (:func:`plan_frames`: cameras, formats, one job per
@@ -52,9 +57,11 @@ from ...render import (WEATHERS, Camera, GroundSampler, Intrinsics, RenderParams
 from ...render.classmap import load_class_map
 from ...render.randomize import Ranges, draw
 from ...render.scene_look import LookTable
+from ...warp_runtime import warp_device
 from .cameras import CameraPlan, ego_lane_points, plan_cameras, with_ego_lanes
 from .events import EventDrive, check_events
 from .options import MAX_FRAMES, RenderOptions, Rig, check_range, check_rig, parse_views, resolve_rig
+from .frame_sink import FrameSink, render_in_process
 from .pipeline import FrameJob, RenderContext, forget, render_chunk
 from .writers import DatasetWriter, available_formats, parse_formats
 
@@ -133,12 +140,14 @@ class Scene:
     lanes: list
     lane_width: float
     ground: Callable[[], GroundSampler]
+    phases: dict = field(default_factory=dict)   # seconds: stage_read
 
 
 def load_scene(stage: Path, o: RenderOptions, checked: CheckedOptions, pm) -> Scene:
     """The renderer and the stage (its ``--material`` variant) as a render mesh, with its lanes."""
     from ...usd.town_reader import load_town   # pxr: Ray render workers import apps.render, may have no USD
 
+    t0 = time.perf_counter()
     rend = pm.get("renderers", o.renderer)
     if not stage.exists():
         raise RoadtwinError(f"{stage}: no such file")
@@ -149,7 +158,7 @@ def load_scene(stage: Path, o: RenderOptions, checked: CheckedOptions, pm) -> Sc
     lanes = stage_lanes(stage)
     lane_width = float(town.metadata.get("laneWidthM", 3.5) or 3.5)
     ground = functools.lru_cache(maxsize=1)(lambda: GroundSampler(mesh))
-    return Scene(rend, town, mesh, lanes, lane_width, ground)
+    return Scene(rend, town, mesh, lanes, lane_width, ground, {"stage_read": time.perf_counter() - t0})
 
 
 @dataclass
@@ -164,11 +173,13 @@ class FramePlan:
     jobs: list[FrameJob]
     context: RenderContext
     drive: EventDrive | None
+    phases: dict = field(default_factory=dict)   # seconds: stage_read, view_sampling, randomize
 
 
 def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: Scene, pm) -> FramePlan:
     """Cameras chosen, formats checked, each frame's job decided and the event drive rendered."""
     r, cmap, params = checked.rig, checked.class_map, checked.params
+    t0 = time.perf_counter()
     plan = plan_cameras(stage, scene.town, scene.lanes, scene.ground, r,
                         Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg), frames=o.frames, poses=o.poses,
                         view_kind=checked.view_kind, share=checked.share, background=checked.background,
@@ -180,7 +191,9 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
         lane_xy = ego_lane_points(plan)
     else:
         lane_xy = [None] * len(plan.poses)
+    t1 = time.perf_counter()
     mesh, jobs = frame_jobs(plan, scene.mesh, params, stage, o.seed, lane_xy, o.randomize, checked.ranges)
+    phases = {**scene.phases, "view_sampling": t1 - t0, "randomize": time.perf_counter() - t1}
     ctx = RenderContext(f"{os.getpid()}-{time.time_ns()}", scene.renderer, mesh, params, cmap, scene.lane_width,
                         "normal" in fmt)
     drive = checked.drive
@@ -188,7 +201,7 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
         if not scene.lanes:
             raise RoadtwinError(f"{stage}: --events drives along a lane, but the stage has no driving lane centerlines")
         drive = drive.start(scene.renderer, mesh, params, scene.lanes, scene.ground(), o.seed, r)
-    return FramePlan(plan, fmt, known_formats, mesh, jobs, ctx, drive)
+    return FramePlan(plan, fmt, known_formats, mesh, jobs, ctx, drive, phases)
 
 
 def frame_jobs(plan: CameraPlan, mesh, params, stage: Path, seed: int, lane_xy: list, randomize: bool,
@@ -231,8 +244,8 @@ def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedO
     writer = DatasetWriter(folder, frames.formats, plan.intrinsics, classes, mesh.instances,
                            plan.baseline_m if plan.stereo else None, categories=mesh.defect_types,
                            available=frames.known_formats)
-    shares, backend_used, device_used = _render_frames(checked.runner, frames.context, frames.jobs, writer, o.workers,
-                                                       progress)
+    sink = _render_frames(checked.runner, frames.context, frames.jobs, writer, o.workers, progress)
+    shares, backend_used, device_used = sink.shares, sink.backend, sink.device
     t_frames = time.perf_counter()
     n_events = frames.drive.write(writer, progress) if frames.drive is not None else 0
     t_events = time.perf_counter()
@@ -250,6 +263,8 @@ def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedO
         "render_params": dataclasses.asdict(checked.params), "material": o.material, "seed": o.seed,
         "timings_s": {"setup": round(t_setup - t0, 3), "frames": round(t_frames - t_setup, 3),
                       "events": round(t_events - t_frames, 3)},
+        # seconds per phase, summed over threads and workers (bench/render_throughput.py prints them)
+        "phase_timings_s": {k: round(v, 4) for k, v in {**frames.phases, **sink.phases}.items()},
     }
     summary["frames_per_s"] = round(len(plan.poses) / max(t_frames - t_setup, 1e-9), 3)
     writer.finish({"render": summary})
@@ -257,26 +272,43 @@ def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedO
 
 
 def _render_frames(runner, ctx: RenderContext, jobs: list, writer, workers: int | None, progress: Progress | None):
-    """Frames rendered in chunks on the executor's workers, written here in frame order;
-    returns (per-frame defect pixel shares, backend, device)."""
+    """Frames rendered, finished and written (``frame_sink``); returns the sink (per-frame
+    defect pixel shares, backend, device, phase seconds). On a GPU device frames render in this
+    process and ``workers`` forked processes (default: one a core but this one) finish and write
+    them; the serial executor does the same on ``workers`` threads (default 1); on the CPU,
+    chunks go to the executor's workers and come back finished, and threads write them."""
     report = progress or (lambda *_: None)
-    n_workers = 1 if runner.name == "serial" else (workers or os.cpu_count() or 1)
-    per_chunk = max(1, min(16, -(-len(jobs) // (4 * n_workers)))) if runner.name != "serial" else 1
-    chunks = [jobs[i:i + per_chunk] for i in range(0, len(jobs), per_chunk)]
-    shares: list[dict] = []
-    backend_used = device_used = None
+    n_cpu = os.cpu_count() or 1
+    gpu = runner.name == "local" and _on_gpu(ctx.params.device)
+    if gpu or runner.name == "serial":
+        sink = FrameSink(ctx, writer, jobs, workers or (max(1, n_cpu - 1) if gpu else 1), gpu, report)
+    else:
+        sink = FrameSink(ctx, writer, jobs, min(4, n_cpu), False, report)
     try:
-        for outs in runner.imap(render_chunk, ctx, chunks):
-            for fo in outs:
-                backend_used, device_used = fo.backend, fo.device
-                writer.add(fo.frame, fo.rgb8, fo.image_bytes, fo.rgb8_right, fo.image_bytes_right,
-                           {**jobs[len(shares)].record,
-                            "defect_share": {k: round(v, 6) for k, v in fo.defect_share.items()}})
-                shares.append(fo.defect_share)
-                report("render", len(shares), len(jobs))
+        if gpu or runner.name == "serial":
+            render_in_process(ctx, jobs, sink)
+        else:
+            n_workers = workers or n_cpu
+            per_chunk = max(1, min(16, -(-len(jobs) // (4 * n_workers))))
+            chunks = [jobs[i:i + per_chunk] for i in range(0, len(jobs), per_chunk)]
+            for outs in runner.imap(render_chunk, ctx, chunks):
+                for fo in outs:
+                    sink.put(fo)
+        sink.close()
     finally:
+        sink.shutdown()
         forget(ctx.token)
-    return shares, backend_used, device_used
+    return sink
+
+
+def _on_gpu(device: str | None) -> bool:
+    """Whether the renderer's device is a GPU (a process pool would fork CUDA contexts: no)."""
+    if device is not None:
+        return str(device).startswith("cuda")
+    try:
+        return bool(warp_device(None).is_cuda)
+    except Exception:
+        return False
 
 
 def defect_statistics(shares: list[dict]) -> dict:

@@ -22,11 +22,17 @@ class FrameArrayWriter:
         raise NotImplementedError
 
     def add(self, k: int, stem: str, frame, files: dict) -> dict:
+        return self.commit(k, self.write(k, stem, frame, files))
+
+    def write(self, k: int, stem: str, frame, files: dict) -> None:
+        """This frame's files (thread-safe: touches nothing shared); ``commit`` records nothing."""
         array = getattr(frame, self.name)
         folder = self.ds.root / self.name
         np.save(folder / f"{stem}.npy", array.astype(np.float32))
         save_png(folder / f"{stem}.png", self.view(array))
         files[self.name] = f"{self.name}/{stem}.npy"
+
+    def commit(self, k: int, state) -> dict:
         return {}
 
     def finish(self) -> None:

@@ -91,13 +91,18 @@ class CocoWriter:
             (ds.root / d).mkdir(parents=True, exist_ok=True)
 
     def add(self, k: int, stem: str, frame, files: dict) -> dict:
+        return self.commit(k, self.write(k, stem, frame, files))
+
+    def write(self, k: int, stem: str, frame, files: dict) -> tuple[dict, list[dict]]:
+        """The instance PNG and the frame's image entry and annotations, ids not yet given
+        (thread-safe: touches nothing shared; :meth:`commit` numbers them in frame order)."""
         ds = self.ds
         inst = frame.instance.astype(np.int64)
         save_png(ds.root / "instance" / f"{stem}.png", inst.astype(np.uint16))
         files["instance"] = f"instance/{stem}.png"
         h, w = inst.shape
-        self.images.append({"id": k + 1, "file_name": files["rgb"], "width": w, "height": h})
-        visible = []
+        image = {"id": k + 1, "file_name": files["rgb"], "width": w, "height": h}
+        annotations = []
         ids, counts = np.unique(inst[inst > 0], return_counts=True)
         for iid, n in zip(ids.tolist(), counts.tolist()):
             if n < ds.min_instance_pixels:
@@ -105,14 +110,19 @@ class CocoWriter:
             meta = ds.instances[iid - 1]
             mask = inst == iid
             ys, xs = np.nonzero(mask)
-            self.annotations.append({
-                "id": len(self.annotations) + 1, "image_id": k + 1,
-                "category_id": ds.categories.index(meta["type"]) + 1,
+            annotations.append({
+                "image_id": k + 1, "category_id": ds.categories.index(meta["type"]) + 1,
                 "segmentation": rle_encode(mask), "area": int(n),
                 "bbox": [int(xs.min()), int(ys.min()), int(xs.max() - xs.min() + 1), int(ys.max() - ys.min() + 1)],
                 "iscrowd": 0, "instance_id": iid, "defect_id": meta["defect_id"]})
-            visible.append(iid)
-        return {"instances_visible": visible}
+        return image, annotations
+
+    def commit(self, k: int, state: tuple[dict, list[dict]]) -> dict:
+        image, annotations = state
+        self.images.append(image)
+        for a in annotations:
+            self.annotations.append({"id": len(self.annotations) + 1, **a})
+        return {"instances_visible": [a["instance_id"] for a in annotations]}
 
     def finish(self) -> None:
         coco = {"info": {"description": "roadtwin synthetic road defects", "version": "1.0"},

@@ -38,7 +38,19 @@ from .images import (colorize_instances, colorize_labels, colorize_normals, colo
                      write_contact_sheet, write_image)
 from .registry import WRITERS
 
-__all__ = ["DatasetWriter"]
+__all__ = ["DatasetWriter", "WrittenFrame"]
+
+
+@dataclass
+class WrittenFrame:
+    """A frame whose files are written but not yet recorded (:meth:`DatasetWriter.commit`)."""
+
+    index: int
+    stem: str
+    frame: Frame
+    files: dict
+    states: list                 # per writer that wrote at write time: what its commit records
+    thumbs: dict | None          # the contact sheet's row (first frames only)
 
 
 @dataclass
@@ -81,7 +93,13 @@ class DatasetWriter:
         """Write one frame. ``rgb8`` / ``image_bytes``: the image as the camera recorded it (8-bit
         sRGB, and its JPEG bytes when a sensor model encoded it: written as ``.jpg`` unchanged);
         default: ``frame.rgb`` tone-mapped, as PNG. ``record``: extra per-frame metadata."""
-        k = len(self.frames_meta)
+        self.commit(self.write(len(self.frames_meta), frame, rgb8, image_bytes, rgb8_right, image_bytes_right), record)
+
+    def write(self, k: int, frame: Frame, rgb8: np.ndarray | None = None, image_bytes: bytes | None = None,
+              rgb8_right: np.ndarray | None = None, image_bytes_right: bytes | None = None) -> "WrittenFrame":
+        """Frame ``k``'s files (as :meth:`add`), without recording it: frames may be written on
+        several threads at once, then :meth:`commit`-ed in frame order. Formats whose writer has
+        no ``write`` (plugins' writers) are written at commit."""
         stem = f"{k:06d}"
         files: dict[str, str] = {}
         if (frame.rgb is None and rgb8 is None) or frame.depth is None or frame.semantic is None:
@@ -93,8 +111,28 @@ class DatasetWriter:
                 raise RoadtwinError("renderer returned a stereo frame without right image or disparity")
             rgb8_right = to_srgb8(frame.rgb_right) if rgb8_right is None else rgb8_right
             files["rgb_right"] = self._write_view("images_right", stem, rgb8_right, image_bytes_right)
-        extra: dict = {}
+        states = [w.write(k, stem, frame, files) for w in self._parallel_writers()]
+        thumbs = self._thumbs(frame, rgb8) if k < self.preview_frames else None
+        return WrittenFrame(k, stem, frame, files, states, thumbs)
+
+    def _parallel_writers(self) -> list:
+        """The writers whose files :meth:`write` makes: every one with a ``write``, up to the first without."""
+        out = []
         for w in self.writers:
+            if not hasattr(w, "write"):
+                break
+            out.append(w)
+        return out
+
+    def commit(self, written: "WrittenFrame", record: dict | None = None) -> None:
+        """Record a frame :meth:`write` wrote (frames in order: ``written.index`` is the next one)."""
+        k, stem, frame, files = written.index, written.stem, written.frame, written.files
+        if k != len(self.frames_meta):
+            raise RoadtwinError(f"dataset writer: frame {k} committed out of order (expected {len(self.frames_meta)})")
+        extra: dict = {}
+        for w, state in zip(self.writers, written.states):
+            extra.update(w.commit(k, state))
+        for w in self.writers[len(written.states):]:
             extra.update(w.add(k, stem, frame, files))
         entry = {"index": k, "stem": stem, "cam_to_world": frame.camera.cam_to_world.tolist(), "files": files}
         if frame.time_s is not None:
@@ -104,8 +142,8 @@ class DatasetWriter:
         entry.update(extra)
         entry.update(record or {})
         self.frames_meta.append(entry)
-        if len(self.previews) < self.preview_frames:
-            self.previews.append(self._thumbs(frame, rgb8))
+        if written.thumbs is not None and len(self.previews) < self.preview_frames:
+            self.previews.append(written.thumbs)
 
     def _thumbs(self, frame: Frame, rgb8: np.ndarray) -> dict[str, np.ndarray]:
         valid = frame.depth > 0

@@ -3,6 +3,7 @@ as mode ``I;16``, so writing needs no OpenCV), hard links, label / instance / sc
 colour maps and the contact sheet."""
 from __future__ import annotations
 
+import functools
 import os
 import shutil
 from pathlib import Path
@@ -44,16 +45,23 @@ def colorize_instances(inst: np.ndarray) -> np.ndarray:
 
 def colorize_scalar(values: np.ndarray, valid: np.ndarray, lo: float, hi: float, log: bool = True) -> np.ndarray:
     """Values -> turbo colours on a fixed (log) range; invalid pixels black."""
-    from matplotlib import colormaps
-
     v = np.asarray(values, dtype=np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
         x = (np.log(v) - np.log(lo)) / (np.log(hi) - np.log(lo)) if log else (v - lo) / (hi - lo)
     x = np.clip(np.nan_to_num(x), 0.0, 1.0)
-    lut = (colormaps["turbo"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
-    img = lut[(x * 255).astype(np.int64)]
+    img = _turbo_lut()[(x * 255).astype(np.int64)]
     img[~valid] = 0
     return img
+
+
+@functools.lru_cache(maxsize=1)
+def _turbo_lut() -> np.ndarray:
+    """matplotlib's turbo colour map as 256 8-bit colours (built once: it cost ~1 ms a frame)."""
+    from matplotlib import colormaps
+
+    lut = (colormaps["turbo"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
+    lut.flags.writeable = False
+    return lut
 
 
 def colorize_normals(normal: np.ndarray) -> np.ndarray:

@@ -33,6 +33,13 @@ class KittiWriter:
             (ds.root / "kitti/training" / d).mkdir(parents=True, exist_ok=True)
 
     def add(self, k: int, stem: str, frame, files: dict) -> dict:
+        return self.commit(k, self.write(k, stem, frame, files))
+
+    def commit(self, k: int, state) -> dict:
+        return {}
+
+    def write(self, k: int, stem: str, frame, files: dict) -> None:
+        """This frame's files (thread-safe: touches nothing shared)."""
         root = self.ds.root
         kt = root / "kitti/training"
         name = f"{stem}_10.png"
@@ -45,7 +52,6 @@ class KittiWriter:
         (kt / "calib_cam_to_cam" / f"{stem}.txt").write_text(self.calib())
         files.update(kitti_left=f"kitti/training/image_2/{img_name}", kitti_right=f"kitti/training/image_3/{img_name}",
                      disparity=f"kitti/training/disp_occ_0/{name}", disparity_noc=f"kitti/training/disp_noc_0/{name}")
-        return {}
 
     def calib(self) -> str:
         k = self.ds.intrinsics

@@ -24,11 +24,17 @@ class MmsegWriter:
             (ds.root / d).mkdir(parents=True, exist_ok=True)
 
     def add(self, k: int, stem: str, frame, files: dict) -> dict:
+        return self.commit(k, self.write(k, stem, frame, files))
+
+    def commit(self, k: int, state) -> dict:
+        return {}
+
+    def write(self, k: int, stem: str, frame, files: dict) -> None:
+        """This frame's files (thread-safe: touches nothing shared)."""
         root = self.ds.root
         link(root / files["rgb"], root / "mmseg/img_dir/train" / f"{stem}{Path(files['rgb']).suffix}")
         save_png(root / "mmseg/ann_dir/train" / f"{stem}.png", frame.semantic.astype(np.uint8))
         files["semantic"] = f"mmseg/ann_dir/train/{stem}.png"
-        return {}
 
     def finish(self) -> None:
         ds = self.ds

@@ -3,7 +3,11 @@ name -> writer class, one module per format). A writer class has ``name``, ``nee
 ``__init__(dataset_writer)`` (makes its folders), ``add(k, stem, frame, files) -> dict`` (writes
 frame ``k``'s files, records them in ``files``, returns extra meta.json fields of the frame) and
 ``finish()``. Writers run in this dict's order, whatever order the formats were given in. Plugins
-add formats through the ``dataset_formats`` hook (:func:`available_formats`)."""
+add formats through the ``dataset_formats`` hook (:func:`available_formats`). A writer may split
+``add`` in two: ``write(k, stem, frame, files) -> state`` (files only, safe on any thread or
+worker process) and ``commit(k, state) -> dict`` (in frame order); the core's writers do, so a
+GPU render writes frames in parallel (``DatasetWriter.write`` / ``commit``); a writer with ``add``
+alone is called at commit, in order."""
 from __future__ import annotations
 
 from typing import Any, Sequence

@@ -1,0 +1,181 @@
+"""The arms of bench/perception.py and one run of an arm. Every arm runs two phases of P and R
+steps (each a fresh AdamW, warm-up + cosine), so all arms spend the same P + R optimizer steps:
+
+  real     (a) P real + R real
+  pretrain (b) P synthetic + R real (the P-step synthetic model is shared per seed: --cache)
+  mixed    (c) P mixed + R mixed ("constant") or R real ("finetune"); every mixed batch holds
+               round(ratio * batch) synthetic frames and the rest real; ratio and schedule come
+               from the cross-validation over the train frames (bench/_perception_cv.py) or --mix
+  paste    (d) P + R real with real pothole pixels pasted into other real frames (same rows)
+  zeroshot (e) P synthetic + R synthetic: never sees a real frame (no fraction)
+
+Phase 2 of (a), (b) and a "finetune" (c) draw the same real batches (same phase seed).
+Nothing is selected on the evaluation frames: fixed schedules, the last weights.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from roadtwin_core.errors import RoadtwinError
+
+import _segnet
+from _perception_data import CLASSES, Frames, real_subset
+from _perception_train import MEAN, STD, Phase, evaluate, to_device, train_phase
+
+ARMS = ("real", "pretrain", "mixed", "paste", "zeroshot")
+LETTER = dict(zip(ARMS, "abcde"))
+SYNTHETIC_ARMS = ("pretrain", "mixed", "zeroshot")
+SCHEDULES = ("constant", "finetune")
+
+
+@dataclass
+class Config:
+    steps: int = 2250             # R: phase-2 steps
+    pretrain_steps: int = 2250    # P: phase-1 steps
+    batch: int = 16
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    width: int = 32               # scratch: U-Net base channels; efficientnet-lite0: decoder width x width/32
+    encoder: str = _segnet.DEFAULT_ENCODER
+    warmup: int = 100
+    subset_seed: int = 0
+    size: tuple | None = (512, 320)
+
+
+def run_name(arm: str, fraction: float | None) -> str:
+    return arm if arm == "zeroshot" else f"{arm}@{round(fraction * 100):g}%"
+
+
+def make_model(cfg: Config):
+    """The network of ``cfg.encoder`` (bench/_segnet.py); a missing encoder package is one line."""
+    try:
+        return _segnet.make_model(cfg.encoder, cfg.width, len(CLASSES), MEAN, STD)
+    except _segnet.EncoderUnavailable as exc:
+        raise RoadtwinError(str(exc)) from None
+
+
+def fresh_model(cfg: Config, seed: int, device):
+    torch = _segnet_torch()
+    torch.manual_seed(seed)                    # the same initial weights in every arm of a seed
+    m = make_model(cfg).to(device)
+    if torch.device(device).type == "cuda":
+        m = m.to(memory_format=torch.channels_last)
+    return m
+
+
+def _segnet_torch():
+    import torch
+
+    return torch
+
+
+def mix_counts(batch: int, ratio: float) -> dict:
+    """Frames per source of a mixed batch: at least one of each."""
+    n_syn = min(batch - 1, max(1, int(round(ratio * batch))))
+    return {"real": batch - n_syn, "synth": n_syn}
+
+
+def arm_phases(arm: str, cfg: Config, seed: int, mix: dict | None = None) -> list[Phase]:
+    P, R, B = cfg.pretrain_steps, cfg.steps, cfg.batch
+    real, synth = {"real": B}, {"synth": B}
+    s1, s2 = seed * 1000 + 1, seed * 1000 + 3
+    if arm == "real":
+        return [Phase("real phase 1", P, real, seed=seed * 1000 + 2), Phase("real", R, real, seed=s2)]
+    if arm == "pretrain":
+        return [Phase("synthetic", P, synth, seed=s1), Phase("real", R, real, seed=s2)]
+    if arm == "zeroshot":
+        return [Phase("synthetic", P, synth, seed=s1), Phase("synthetic phase 2", R, synth, seed=seed * 1000 + 4)]
+    if arm == "paste":
+        return [Phase("paste phase 1", P, real, paste=True, seed=seed * 1000 + 2),
+                Phase("paste", R, real, paste=True, seed=s2)]
+    if arm == "mixed":
+        counts = mix_counts(B, mix["ratio"])
+        second = counts if mix["schedule"] == "constant" else real
+        return [Phase("mixed", P, counts, seed=seed * 1000 + 5),
+                Phase("mixed" if second is counts else "real", R, second, seed=s2 if second is real else seed * 1000 + 6)]
+    raise RoadtwinError(f"--arms: {arm!r} is not one of {', '.join(ARMS)}")
+
+
+def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path | None, log=print):
+    """The P-step synthetic model of a seed (phase 1 of (b) and (e)): loaded from ``cache`` when
+    a run already made it, else trained (and saved there, atomically)."""
+    torch = _segnet_torch()
+    phase = arm_phases("pretrain", cfg, seed)[0]
+    key = (f"pretrain_seed{seed}_{cfg.encoder}_w{cfg.width}_P{cfg.pretrain_steps}_b{cfg.batch}"
+           f"_n{synth_dev[0].shape[0]}.pt")
+    model = fresh_model(cfg, seed, device)
+    path = Path(cache) / key if cache else None
+    if path is not None and path.exists():
+        saved = torch.load(path, map_location=device, weights_only=False)
+        model.load_state_dict(saved["state"])
+        log(f"  loaded the synthetic phase 1 of seed {seed} from {path}")
+        return model, saved["phase"]
+    info = train_phase(model, {"synth": synth_dev}, phase, cfg, device, log)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".tmp{id(model)}")
+        torch.save({"state": model.state_dict(), "phase": info}, tmp)
+        tmp.replace(path)
+    return model, info
+
+
+def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Frames | None, device,
+              mix: dict | None = None, cache: Path | None = None, log=print):
+    """The model of one arm, trained; returns (model, phases info)."""
+    phases = arm_phases(arm, cfg, seed, mix)
+    data = {}
+    if real is not None and arm in ("real", "pretrain", "mixed", "paste"):
+        data["real"] = to_device(real, device)
+    if arm in SYNTHETIC_ARMS:
+        if synth is None:
+            raise RoadtwinError(f"--arms {arm}: needs --synthetic DIR")
+        data["synth"] = to_device(synth, device)
+    if arm in ("pretrain", "zeroshot"):
+        model, first = pretrained_synthetic(cfg, seed, data["synth"], device, cache, log)
+        infos = [first]
+    else:
+        model = fresh_model(cfg, seed, device)
+        infos = [train_phase(model, data, phases[0], cfg, device, log)]
+    infos.append(train_phase(model, data, phases[1], cfg, device, log))
+    return model, infos
+
+
+def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: Frames, synth: Frames | None,
+            cfg: Config, device, mix: dict | None = None, cache: Path | None = None, keep=(), log=print) -> dict:
+    """One (arm, fraction, seed) run: train, evaluate per frame; the result a run JSON holds."""
+    t0 = time.perf_counter()
+    sub = real_subset(real, fraction, cfg.subset_seed) if arm != "zeroshot" else None
+    model, infos = train_arm(arm, cfg, seed, sub, synth, device, mix, cache, log)
+    t1 = time.perf_counter()
+    i, u, kept = evaluate(model, to_device(evalset, device), device, cfg.batch, set(keep))
+    steps = sum(p["steps"] for p in infos)
+    train_s = sum(p["seconds"] for p in infos)
+    return {"arm": arm, "letter": LETTER[arm], "fraction": fraction if arm != "zeroshot" else None, "seed": seed,
+            "name": run_name(arm, fraction), "config": asdict(cfg), "mix": mix, "phases": infos, "steps": steps,
+            "train_seconds": round(train_s, 2), "steps_per_s": round(steps / train_s, 2) if train_s else None,
+            "eval_seconds": round(time.perf_counter() - t1, 2), "wall_seconds": round(time.perf_counter() - t0, 2),
+            "real_frames": len(sub.stems) if sub else 0, "real_pothole_frames": int(len(sub.pothole_frames())) if sub else 0,
+            "synthetic_frames": len(synth.stems) if synth is not None and arm in SYNTHETIC_ARMS else 0,
+            "eval": {"folder": evalset.folder, "stems": evalset.stems},
+            "I": i.tolist(), "U": u.tolist(), "grid": {str(k): v for k, v in sorted(kept.items())}}
+
+
+def write_run(result: dict, out: Path) -> Path:
+    """OUT/run_<arm>_<pct>_seed<k>.json (+ .npz of the grid predictions), written atomically."""
+    out.mkdir(parents=True, exist_ok=True)
+    pct = "na" if result["fraction"] is None else f"{round(result['fraction'] * 100):g}"
+    base = out / f"run_{result['arm']}_{pct}_seed{result['seed']}"
+    grid = result.pop("grid")
+    tmp = base.with_suffix(".tmp.npz")
+    np.savez_compressed(tmp, frames=np.array([int(k) for k in grid], dtype=np.int64),
+                        preds=np.stack(list(grid.values())) if grid else np.zeros((0, 1, 1), np.uint8))
+    tmp.replace(base.with_suffix(".npz"))
+    tmp = base.with_suffix(".tmp.json")
+    tmp.write_text(json.dumps(result))
+    tmp.replace(base.with_suffix(".json"))
+    return base.with_suffix(".json")

@@ -1,0 +1,134 @@
+"""Cross-validation of the mixed arm (c): its synthetic share per batch and its schedule are
+chosen inside the real TRAIN frames of a fraction, never on val or test.
+
+The fraction's real subset is split in k folds by road (road_defects_br frame names carry the
+road; by frame where there are fewer roads than folds). For each grid point (ratio, schedule)
+and fold, a mixed model is trained on the other folds plus the synthetic frames for a shorter
+budget (--cv-steps, split between the two phases as P : R) and evaluated on the held-out fold.
+Intersections and unions are summed over the folds; the point with the highest pooled IoU of
+--cv-metric (pothole by default, the issue's target) wins, ties to the earlier grid point.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from roadtwin_core.errors import RoadtwinError
+
+from _perception_arms import SCHEDULES, Config, train_arm
+from _perception_data import CLASSES, Frames, cv_folds, real_subset, road_of
+from _perception_report import iou_table
+from _perception_train import evaluate, to_device
+
+
+def grid_points(ratios, schedules) -> list[dict]:
+    for s in schedules:
+        if s not in SCHEDULES:
+            raise RoadtwinError(f"--cv-schedules: {s!r} is not one of {', '.join(SCHEDULES)}")
+    for r in ratios:
+        if not 0 < r < 1:
+            raise RoadtwinError(f"--cv-ratios: {r} is not in (0, 1)")
+    return [{"ratio": float(r), "schedule": s} for s, r in itertools.product(schedules, ratios)]
+
+
+def parse_mix(text: str) -> dict:
+    """``RATIO:SCHEDULE`` (e.g. 0.25:finetune) -> a grid point, given by hand instead of CV."""
+    try:
+        ratio, schedule = text.split(":")
+        return grid_points([float(ratio)], [schedule])[0]
+    except ValueError:
+        raise RoadtwinError(f"--mix: {text!r} is not RATIO:SCHEDULE (e.g. 0.25:constant)") from None
+
+
+def cv_config(cfg: Config, cv_steps: int) -> Config:
+    total = cfg.pretrain_steps + cfg.steps
+    p = int(round(cv_steps * cfg.pretrain_steps / total)) if total else 0
+    return replace(cfg, pretrain_steps=p, steps=cv_steps - p)
+
+
+def cv_point(fraction: float, point: dict, k: int, real: Frames, synth: Frames, cfg: Config, cv_steps: int,
+             seed: int, device) -> dict:
+    """One grid point: its k fold models, intersections and unions summed over the folds."""
+    parts = [cv_one(fraction, point, f, k, real, synth, cfg, cv_steps, seed, device, lambda *a: None) for f in range(k)]
+    done = [p for p in parts if p["steps"]]
+    return {**parts[0], "fold": "all", "held_out": [p["held_out"] for p in done], "steps": sum(p["steps"] for p in done),
+            "seconds": round(sum(p["seconds"] for p in done), 2), "I": np.sum([p["I"] for p in parts], 0).tolist(),
+            "U": np.sum([p["U"] for p in parts], 0).tolist(), "steps_per_model": max(p["steps"] for p in parts)}
+
+
+def cv_one(fraction: float, point: dict, fold: int, k: int, real: Frames, synth: Frames, cfg: Config,
+           cv_steps: int, seed: int, device, log=print) -> dict:
+    """One (grid point, fold) model: trained on the other folds, scored on this one."""
+    sub = real_subset(real, fraction, cfg.subset_seed)
+    folds, by = cv_folds(sub.stems, k, cfg.subset_seed)
+    if fold >= len(folds):             # fewer frames than folds: this fold does not exist
+        return {"fraction": fraction, "point": point, "fold": fold, "folds": len(folds), "by": by, "held_out": [],
+                "steps": 0, "seconds": 0.0, "I": [0] * len(CLASSES), "U": [0] * len(CLASSES)}
+    held = folds[fold]
+    rest = np.setdiff1d(np.arange(len(sub.stems)), held)
+    model, infos = train_arm("mixed", cv_config(cfg, cv_steps), seed, sub.subset(rest), synth, device, point,
+                             log=log)
+    i, u, _ = evaluate(model, to_device(sub.subset(held), device), device, cfg.batch)
+    return {"fraction": fraction, "point": point, "fold": fold, "folds": k, "by": by,
+            "held_out": sorted({road_of(s) for s in sub.subset(held).stems}) if by == "road" else f"{len(held)} frames",
+            "steps": sum(p["steps"] for p in infos), "seconds": round(sum(p["seconds"] for p in infos), 2),
+            "I": i.sum(0).tolist(), "U": u.sum(0).tolist()}
+
+
+def choose(fraction: float, parts: list[dict], metric: str) -> dict:
+    """The grid point with the best pooled ``metric`` over its folds; the record of the choice."""
+    points: dict[str, dict] = {}
+    for p in parts:
+        key = f"{p['point']['ratio']:g}:{p['point']['schedule']}"
+        d = points.setdefault(key, {"point": p["point"], "I": 0, "U": 0, "folds": []})
+        d["I"] = np.add(d["I"], p["I"])
+        d["U"] = np.add(d["U"], p["U"])
+        d["folds"] += p["held_out"] if p.get("fold") == "all" else ([p["held_out"]] if p["steps"] else [])
+    scores = {}
+    for key, d in points.items():
+        t = iou_table(np.asarray(d["I"])[None], np.asarray(d["U"])[None])
+        if metric not in t:
+            raise RoadtwinError(f"--cv-metric: {metric!r} is not one of {', '.join(t)}")
+        scores[key] = {"point": d["point"], metric: t[metric], "table": t, "folds": d["folds"]}
+    best = max(scores, key=lambda k: (np.nan_to_num(scores[k][metric], nan=-1.0), -list(scores).index(k)))
+    return {"fraction": fraction, "metric": metric, "chosen": scores[best]["point"], "scores": scores,
+            "steps_per_model": max(p.get("steps_per_model", p["steps"]) for p in parts), "folds": parts[0]["folds"], "by": parts[0]["by"],
+            "chosen_on": "k-fold cross-validation over the real train frames of this fraction (never val/test)"}
+
+
+def cv_path(cache: Path, fraction: float) -> Path:
+    return Path(cache) / f"cv_{round(fraction * 100):g}.json"
+
+
+def cross_validate(fraction: float, real: Frames, synth: Frames, cfg: Config, points: list[dict], k: int,
+                   cv_steps: int, metric: str, seed: int, device, cache: Path | None, log=print) -> dict:
+    """The mixed arm's choice for a fraction: read from ``cache`` if made, else computed there."""
+    path = cv_path(cache, fraction) if cache else None
+    if path is not None and path.exists():
+        return json.loads(path.read_text())
+    parts = [cv_point(fraction, p, k, real, synth, cfg, cv_steps, seed, device) for p in points]
+    record = choose(fraction, parts, metric)
+    if path is not None:
+        write_json(path, record)
+    log(f"  mixed arm at {round(fraction * 100):g} %: chose ratio {record['chosen']['ratio']:g}, {record['chosen']['schedule']} "
+        f"({metric} by {k}-fold CV on train {record['by']}s)")
+    return record
+
+
+def write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(obj, indent=1, default=_plain))
+    tmp.replace(path)
+
+
+def _plain(v):
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, np.generic):
+        return v.item()
+    raise TypeError(type(v).__name__)

@@ -1,0 +1,175 @@
+"""Metrics and the report of bench/perception.py: dataset IoU per class, mIoU with and without
+background, paired bootstrap intervals of each arm's gain over (a) real-only at the same fraction
+and seeds, a results JSON, a markdown table, gains.png and grid.jpg, from the runs' JSONs.
+"""
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from roadtwin_core.errors import RoadtwinError
+
+from _perception_data import CLASSES
+
+REPORTED = ("pothole", "crack", "ego_lane", "background")
+METRICS = REPORTED + ("mIoU", "mIoU_fg")
+
+
+def iou_table(inter: np.ndarray, union: np.ndarray) -> dict:
+    """Dataset IoU per class (intersections and unions summed over frames; NaN where a class is
+    in neither prediction nor label), mIoU over all classes and over the foreground ones."""
+    i, u = np.asarray(inter).sum(0).astype(float), np.asarray(union).sum(0).astype(float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        iou = np.where(u > 0, i / np.where(u > 0, u, 1), np.nan)
+    out = {c: float(iou[k]) for k, c in enumerate(CLASSES)}
+    out["mIoU"] = float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan")
+    out["mIoU_fg"] = float(np.nanmean(iou[1:])) if np.isfinite(iou[1:]).any() else float("nan")
+    return out
+
+
+def bootstrap_gain(ia, ua, ib, ub, n_boot: int = 2000, seed: int = 0, level: float = 0.95) -> dict:
+    """Paired bootstrap over evaluation frames of the IoU gain of b over a. Inputs (F, C): per
+    frame intersections and unions (summed over seeds), the same frames in both. Each replicate
+    draws F frames with replacement, the same draw for both arms. Per metric: the observed gain
+    and the percentile interval."""
+    ia, ua, ib, ub = (np.asarray(v, dtype=np.float64) for v in (ia, ua, ib, ub))
+    f = ia.shape[0]
+    rng = np.random.default_rng(seed)
+    w = np.stack([np.bincount(rng.integers(0, f, f), minlength=f) for _ in range(n_boot)]).astype(np.float64)
+
+    def metrics(i, u):   # (..., C) sums -> dict of arrays
+        with np.errstate(invalid="ignore", divide="ignore"):
+            iou = np.where(u > 0, i / np.where(u > 0, u, 1), np.nan)
+            d = {c: iou[..., k] for k, c in enumerate(CLASSES)}
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)
+                d["mIoU"] = np.nanmean(iou, -1)
+                d["mIoU_fg"] = np.nanmean(iou[..., 1:], -1)
+        return d
+
+    obs_a, obs_b = metrics(ia.sum(0), ua.sum(0)), metrics(ib.sum(0), ub.sum(0))
+    rep_a, rep_b = metrics(w @ ia, w @ ua), metrics(w @ ib, w @ ub)
+    q = [(1 - level) / 2 * 100, (1 + level) / 2 * 100]
+    out = {}
+    for key in obs_a:
+        diff = rep_b[key] - rep_a[key]
+        lo, hi = np.nanpercentile(diff, q) if np.isfinite(diff).any() else (np.nan, np.nan)
+        out[key] = {"gain": float(obs_b[key] - obs_a[key]), "lo": float(lo), "hi": float(hi)}
+    return out
+
+
+def load_runs(paths) -> list[dict]:
+    """Run JSONs (files, or folders holding run_*.json); the same (arm, fraction, seed) twice must
+    agree, and every run must be evaluated on the same frames."""
+    files = []
+    for p in map(Path, paths):
+        files += sorted(p.glob("run_*.json")) if p.is_dir() else [p]
+    if not files:
+        raise RoadtwinError(f"no run_*.json in {', '.join(map(str, paths))}")
+    runs, seen = [], {}
+    for f in files:
+        try:
+            r = json.loads(f.read_text())
+            key = (r["arm"], r["fraction"], r["seed"])
+        except (ValueError, KeyError, TypeError):
+            raise RoadtwinError(f"{f}: not a run JSON of bench/perception.py") from None
+        if r["eval"]["stems"] != (runs[0]["eval"]["stems"] if runs else r["eval"]["stems"]):
+            raise RoadtwinError(f"{f}: evaluated on other frames than {files[0]} ({r['eval']['folder']})")
+        if runs and r["config"] != runs[0]["config"]:
+            diff = sorted(k for k in r["config"] if r["config"][k] != runs[0]["config"].get(k))
+            raise RoadtwinError(f"{f}: trained with another configuration than {runs[0]['_file']} ({', '.join(diff)})")
+        if key in seen:
+            if seen[key]["I"] != r["I"]:
+                raise RoadtwinError(f"{f}: run {r['name']} seed {r['seed']} given twice with other results")
+            continue
+        r["_file"] = str(f)
+        seen[key] = r
+        runs.append(r)
+    steps = {r["steps"] for r in runs}
+    if len(steps) > 1:
+        raise RoadtwinError(f"runs with unequal optimizer steps {sorted(steps)}: every arm must get the same budget")
+    return runs
+
+
+def _pooled(runs: list[dict], seeds) -> tuple[np.ndarray, np.ndarray]:
+    by = {r["seed"]: r for r in runs}
+    return (sum(np.array(by[s]["I"]) for s in seeds), sum(np.array(by[s]["U"]) for s in seeds))
+
+
+def _gain(summary: dict, key: str, arm: str, rs: list[dict], base: list[dict], n_boot: int, boot_seed: int,
+          moonshot: bool = False) -> None:
+    """The gain of runs ``rs`` over the real-only runs ``base`` on their common seeds (pooled)."""
+    seeds = sorted({r["seed"] for r in rs} & {r["seed"] for r in base})
+    if not seeds:
+        return
+    ia, ua = _pooled(base, seeds)
+    ib, ub = _pooled(rs, seeds)
+    g = bootstrap_gain(ia, ua, ib, ub, n_boot=n_boot, seed=boot_seed)
+    for m in METRICS:
+        g[m]["per_seed"] = [iou_table(*_pooled(rs, [s]))[m] - iou_table(*_pooled(base, [s]))[m] for s in seeds]
+    summary["gains"][key] = {"arm": arm, "over": f"{base[0]['name']}", "seeds": seeds, "moonshot": moonshot, **g}
+
+
+def summarize(runs: list[dict], n_boot: int = 2000, boot_seed: int = 0) -> dict:
+    groups: dict[str, list[dict]] = {}
+    for r in sorted(runs, key=lambda r: ("abcde".index(r["letter"]), -(r["fraction"] or 0), r["seed"])):
+        groups.setdefault(r["name"], []).append(r)
+    first = runs[0]
+    summary = {"eval": {"folder": first["eval"]["folder"], "frames": len(first["eval"]["stems"])},
+               "steps_per_run": first["steps"], "config": first["config"], "device": first.get("device", ""),
+               "gpu_seconds": round(sum(r["wall_seconds"] for r in runs), 1), "runs": {}, "gains": {},
+               "bootstrap": {"resamples": n_boot, "seed": boot_seed, "level": 0.95, "unit": "evaluation frame"}}
+    for name, rs in groups.items():
+        tables = [iou_table(np.array(r["I"]), np.array(r["U"])) for r in rs]
+        summary["runs"][name] = {
+            "arm": rs[0]["arm"], "letter": rs[0]["letter"], "fraction": rs[0]["fraction"], "seeds": [r["seed"] for r in rs],
+            "steps": rs[0]["steps"], "mix": rs[0].get("mix"), "steps_per_s": [r["steps_per_s"] for r in rs],
+            **{m: {"mean": float(np.mean([t[m] for t in tables])),
+                   "std": float(np.std([t[m] for t in tables], ddof=1)) if len(tables) > 1 else 0.0,
+                   "per_seed": [t[m] for t in tables]} for m in METRICS}}
+    real_fracs = sorted({r["fraction"] for r in runs if r["arm"] == "real"}, reverse=True)
+    for name, rs in groups.items():
+        arm, frac = rs[0]["arm"], rs[0]["fraction"]
+        if arm == "real":
+            continue
+        for bf in (real_fracs if arm == "zeroshot" else [frac]):
+            key = name if arm != "zeroshot" else f"zeroshot vs real@{round(bf * 100):g}%"
+            _gain(summary, key, arm, rs, groups.get(f"real@{round(bf * 100):g}%", []), n_boot, boot_seed)
+    # the moonshot: a synthetic arm with a share of the real frames against (a) with all of them
+    for name, rs in groups.items():
+        if rs[0]["arm"] in ("pretrain", "mixed") and rs[0]["fraction"] < 1 and 1.0 in real_fracs:
+            _gain(summary, f"{name} vs real@100%", rs[0]["arm"], rs, groups["real@100%"], n_boot, boot_seed,
+                  moonshot=True)
+    return summary
+
+
+def _pt(v) -> str:
+    return "–" if v is None or not np.isfinite(v) else f"{100 * v:.1f}"
+
+
+def markdown(summary: dict) -> str:
+    cols = list(METRICS)
+    head = ["run", "seeds"] + [c.replace("_fg", " w/o bg").replace("_", " ") for c in cols] + ["mix (CV)"]
+    lines = [f"Evaluation: `{summary['eval']['folder']}` ({summary['eval']['frames']} frames); "
+             f"{summary['steps_per_run']} optimizer steps in every run; IoU in points, mean ± std over seeds.", "",
+             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for name, t in summary["runs"].items():
+        mix = t.get("mix")
+        mix_text = f"{mix['ratio']:g} synthetic, {mix['schedule']}" if mix else ""
+        lines.append(f"| ({t['letter']}) {name} | {len(t['seeds'])} | "
+                     + " | ".join(f"{_pt(t[c]['mean'])} ± {_pt(t[c]['std'])}" for c in cols) + f" | {mix_text} |")
+    if summary["gains"]:
+        n = summary["bootstrap"]["resamples"]
+        lines += ["", f"Gain over (a) at the same fraction and seeds (seeds pooled), paired bootstrap 95 % "
+                  f"interval over val frames ({n} resamples); 'vs real@100%': the moonshot, a share of the real "
+                  "frames + synthetic against all real frames:", "",
+                  "| run | over | " + " | ".join(c.replace("_fg", " w/o bg").replace("_", " ") for c in cols) + " |",
+                  "|" + "---|" * (len(cols) + 2)]
+        for name, g in summary["gains"].items():
+            lines.append(f"| {name} | {g['over']} | " + " | ".join(
+                f"{'+' if g[c]['gain'] >= 0 else ''}{_pt(g[c]['gain'])} [{_pt(g[c]['lo'])}, {_pt(g[c]['hi'])}]"
+                for c in cols) + " |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,191 @@
+"""``bench/perception.py suite``: a list of (arm, fraction, seed) runs as N processes sharing one
+GPU, each writing its own run JSON, so a whole table takes few device calls.
+
+Jobs: the synthetic phase 1 of each seed (shared by arms b and e), the cross-validation of the
+mixed arm (one job per fraction and grid point, its folds inside; the parent picks the point
+once a fraction's jobs are in) and the runs. A job starts when what it needs exists; jobs whose
+output already exists (in --out or a --reuse folder) are skipped, so a table too long for one
+call is finished by the next call with the earlier outputs carried back. With --time-budget a
+job starts only if, at the pace of the jobs done so far, it ends in time, so a call ends with
+whole runs only. Each job is ``perception.py _job COMMON SPEC`` with its log in OUT/logs/; the
+parent prints each one's wall time and steps/s as it ends.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from _perception_arms import run_name
+from _perception_cv import choose, cv_path, write_json
+
+HERE = Path(__file__).resolve().parent
+
+
+@dataclass
+class Job:
+    kind: str                     # pretrain | cv | run
+    spec: dict
+    output: Path
+    needs: list = field(default_factory=list)
+    label: str = ""
+    steps: int = 0                # optimizer steps it trains (pace estimate)
+
+
+def pct(fraction: float) -> str:
+    return f"{round(fraction * 100):g}"
+
+
+def plan(arms, fractions, seeds, out: Path, shared: Path, n_points: int, cv_needed: bool) -> tuple[list[Job], dict]:
+    """Every job of the table, dependencies first (longest chains lead)."""
+    jobs: list[Job] = []
+    pre = {}
+    if any(a in ("pretrain", "zeroshot") for a in arms):
+        for s in seeds:
+            pre[s] = shared / f"pretrain_done_seed{s}.json"
+            jobs.append(Job("pretrain", {"seed": s}, pre[s], label=f"synthetic phase 1 seed {s}"))
+    cv_parts = {}
+    if "mixed" in arms and cv_needed:
+        for f in fractions:
+            cv_parts[f] = []
+            for p in range(n_points):
+                o = shared / "cv_parts" / f"cv_{pct(f)}_p{p}.json"
+                cv_parts[f].append(o)
+                jobs.append(Job("cv", {"fraction": f, "point": p}, o, label=f"cv {pct(f)}% grid point {p}"))
+    order = [a for a in ("pretrain", "zeroshot", "mixed", "real", "paste") if a in arms]
+    for arm in order:
+        for s in seeds:
+            for f in ([None] if arm == "zeroshot" else fractions):
+                needs = [pre[s]] if arm in ("pretrain", "zeroshot") else []
+                if arm == "mixed" and cv_needed:
+                    needs = [cv_path(shared, f)]
+                name = f"run_{arm}_{'na' if f is None else pct(f)}_seed{s}.json"
+                jobs.append(Job("run", {"arm": arm, "fraction": f, "seed": s}, out / name, needs,
+                                label=f"{run_name(arm, f)} seed {s}"))
+    return jobs, cv_parts
+
+
+def _reuse(job: Job, out: Path, reuse: list[Path]) -> bool:
+    """Copy a finished output (and its companions) from a --reuse folder; True when it exists."""
+    if job.output.exists():
+        return True
+    rel = job.output.relative_to(out)
+    for r in reuse:
+        src = Path(r) / rel
+        if job.kind == "pretrain" and not list(src.parent.glob(f"pretrain_seed{job.spec['seed']}_*.pt")):
+            continue                             # its checkpoint did not travel: train it again
+        if src.exists():
+            job.output.parent.mkdir(parents=True, exist_ok=True)
+            for comp in src.parent.glob(src.stem + ".*"):
+                shutil.copy2(comp, job.output.parent / comp.name)
+            if job.kind == "pretrain":
+                for ck in src.parent.glob(f"pretrain_seed{job.spec['seed']}_*.pt"):
+                    shutil.copy2(ck, job.output.parent / ck.name)
+            return True
+    return False
+
+
+def _prune(pending: list[Job], out: Path) -> list[Job]:
+    """Drop the pretrain and CV jobs whose runs are all done already."""
+    runs = [j for j in pending if j.kind == "run"]
+    keep = []
+    for j in pending:
+        if j.kind == "pretrain" and not any(str(j.output) in map(str, r.needs) for r in runs):
+            continue
+        if j.kind == "cv" and (cv_path(out / "shared", j.spec["fraction"]).exists() or not any(
+                r.spec["arm"] == "mixed" and r.spec["fraction"] == j.spec["fraction"] for r in runs)):
+            continue
+        keep.append(j)
+    return keep
+
+
+def _summary_line(job: Job, wall: float) -> str:
+    try:
+        r = json.loads(job.output.read_text())
+    except (OSError, ValueError):
+        return f"{job.label}: {wall:.0f} s"
+    steps = r.get("steps", 0)
+    sec = r.get("train_seconds") or r.get("seconds") or wall
+    return f"{job.label}: {wall:.0f} s wall, {steps} steps, {steps / sec:.1f} steps/s" if steps else f"{job.label}: {wall:.0f} s"
+
+
+def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel: int, budget: float | None,
+              reuse: list[Path], metric: str, log=print) -> int:
+    """Run the jobs, at most ``parallel`` at once; returns the number that failed or never started."""
+    t0 = time.perf_counter()
+    for f in cv_parts:                       # a choice already made travels with --reuse
+        target = cv_path(out / "shared", f)
+        for r in reuse:
+            src = cv_path(Path(r) / "shared", f)
+            if not target.exists() and src.exists():
+                target.parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(src, target)
+    pending = _prune([j for j in jobs if not _reuse(j, out, reuse)], out)
+    log(f"suite: {len(jobs)} jobs, {len(jobs) - len(pending)} already done, {len(pending)} to run, "
+        f"{parallel} in parallel" + (f", every job to end within {budget:.0f} s" if budget else ""))
+    running: list = []
+    pace = None
+    failed: list[Job] = []
+    done_count = len(jobs) - len(pending)
+    (out / "logs").mkdir(parents=True, exist_ok=True)
+    while pending or running:
+        for entry in list(running):
+            job, proc, start, fh = entry
+            if proc.poll() is None:
+                continue
+            fh.close()
+            running.remove(entry)
+            wall = time.perf_counter() - start
+            if proc.returncode == 0 and job.output.exists():
+                done_count += 1
+                if job.steps:                    # wall seconds per step with this many processes
+                    pace = max(pace or 0.0, wall / job.steps)
+                log(f"[{done_count}/{len(jobs)}] {_summary_line(job, wall)}")
+            else:
+                failed.append(job)
+                tail = (out / "logs" / f"{job.output.stem}.log").read_text().strip().splitlines()[-1:] or [""]
+                log(f"FAILED {job.label} (exit {proc.returncode}): {tail[0]}")
+        for f, parts in cv_parts.items():
+            target = cv_path(out / "shared", f)
+            if not target.exists() and all(p.exists() for p in parts):
+                rec = choose(f, [json.loads(p.read_text()) for p in parts], metric)
+                write_json(target, rec)
+                log(f"mixed arm at {pct(f)}%: CV chose ratio {rec['chosen']['ratio']:g}, {rec['chosen']['schedule']}")
+        elapsed = time.perf_counter() - t0
+        out_of_time = budget is not None and elapsed > budget
+        dead = {str(j.output) for j in failed}
+        for job in list(pending):
+            if any(str(n) in dead for n in job.needs) or (job.kind == "run" and job.spec["arm"] == "mixed"
+                                                           and any(str(p) in dead for p in cv_parts.get(job.spec["fraction"], []))):
+                pending.remove(job)
+                failed.append(job)
+                log(f"SKIPPED {job.label}: what it needs failed")
+                continue
+            if len(running) >= parallel or out_of_time:
+                break
+            if budget is not None and pace and elapsed + job.steps * pace + 20 > budget:
+                continue                         # would not end in time at the pace seen so far
+            if all(Path(n).exists() for n in job.needs):
+                pending.remove(job)
+                spec = {"kind": job.kind, **job.spec, "output": str(job.output)}
+                fh = open(out / "logs" / f"{job.output.stem}.log", "w")
+                proc = subprocess.Popen([sys.executable, str(HERE / "perception.py"), "_job", str(common), json.dumps(spec)],
+                                        stdout=fh, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                running.append((job, proc, time.perf_counter(), fh))
+        if not running and pending and not any(all(Path(n).exists() for n in j.needs) for j in pending):
+            log(f"suite: {len(pending)} job(s) wait for outputs no job makes (e.g. {pending[0].needs[0]})")
+            break
+        if budget is not None and not running and (out_of_time or not any(
+                elapsed + j.steps * (pace or 0) + 20 <= budget for j in pending)):
+            break
+        time.sleep(0.2)
+    left = len(pending)
+    log(f"suite: {done_count}/{len(jobs)} done in {time.perf_counter() - t0:.0f} s"
+        + (f"; {len(failed)} failed" if failed else "") + (f"; {left} not started (--time-budget): run the same "
+                                                           f"command again with --reuse" if left else ""))
+    return len(failed) + left

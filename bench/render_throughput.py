@@ -1,0 +1,100 @@
+"""Dataset throughput of ``roadtwin render``, end to end, with seconds and frames/s per phase.
+
+Runs the real render path (``apps.render.run_render``: stage read, view sampling, randomization,
+ray casting and shading, the camera model, ego lane and class map, encoding and writing) with the
+survey rig, ``--randomize`` and ``--classmap builtin:road_defects_br`` at 512x320 into a temporary
+folder, after a short warm-up render (kernels compiled or loaded from warp's cache, imports
+done), and prints per phase its seconds (summed over threads and worker processes), ms per frame
+and the frames/s that phase alone allows on one thread; then the run's wall-clock frames/s::
+
+    .venv/bin/python bench/render_throughput.py --frames 16 --device cpu          # here (2 cores)
+    python3 bench/render_throughput.py --stage out/town.usda --frames 2000 --device cuda   # GPU
+
+Phases: stage_read (USD -> render mesh), view_sampling (cameras and ego lanes), randomize (the
+per-frame draws and look table), prepare (scene to the device; once per process), render (ray
+casting and shading, arrays to the host), sensor (blur, vignetting, exposure, noise, JPEG),
+labels (ego lane, class map, dilation), write (PNG/JPEG/npy files, COCO masks), commit (meta
+records, in order). On CUDA the warp renderer finishes frames on the device
+(``apps/render/device_frames.py``): render then holds the camera model and the labels too (a
+batch's seconds shared out over its frames), sensor only the JPEG encode/decode, labels only the
+dilation. ``--formats`` (default ``mmseg``, what ``bench/perception.py`` reads).
+Without ``--stage`` it composes ``stages/town.usda`` first (not timed).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SETUP = ("stage_read", "view_sampling", "randomize", "prepare")
+FRAME = ("render", "sensor", "labels", "write", "commit")
+
+
+def options(args, frames: int, seed: int):
+    from roadtwin_core.apps.render import RenderOptions
+
+    return RenderOptions(frames=frames, rig="survey", size=args.size, views=args.views, randomize=True,
+                         classmap="builtin:road_defects_br", formats=args.formats, seed=seed, device=args.device,
+                         executor=args.executor, workers=args.workers)
+
+
+def measure(stage: Path, args) -> dict:
+    from roadtwin_core.apps.render import run_render
+
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.warmup:
+            run_render(stage, Path(tmp) / "warmup", options(args, args.warmup, args.seed + 1))
+        t0 = time.perf_counter()
+        summary = run_render(stage, Path(tmp) / "run", options(args, args.frames, args.seed))
+        summary["wall_s"] = time.perf_counter() - t0
+    return summary
+
+
+def report(summary: dict) -> None:
+    n = summary["frames"]
+    phases = summary["phase_timings_s"]
+    print(f"{summary['frames']} frames {summary['size'][0]}x{summary['size'][1]}, device {summary['device']}, "
+          f"backend {summary['backend']}, executor {summary['executor']}, formats {','.join(summary['formats'])}")
+    print(f"{'phase':>14} {'seconds':>9} {'ms/frame':>9} {'frames/s':>10}")
+    for name in SETUP + FRAME + tuple(k for k in phases if k not in SETUP + FRAME):
+        if name in phases:
+            s = phases[name]
+            print(f"{name:>14} {s:9.3f} {1e3 * s / n:9.2f} {n / max(s, 1e-9):10.1f}")
+    t = summary["timings_s"]
+    print(f"{'setup (wall)':>14} {t['setup']:9.3f}")
+    print(f"{'frames (wall)':>14} {t['frames']:9.3f} {1e3 * t['frames'] / n:9.2f} {summary['frames_per_s']:10.1f}")
+    wall = summary["wall_s"]
+    print(f"{'end to end':>14} {wall:9.3f} {1e3 * wall / n:9.2f} {n / wall:10.1f}")
+    print("BENCH " + json.dumps({"frames": n, "device": summary["device"], "executor": summary["executor"],
+                                 "phases_s": phases, "frames_wall_s": t["frames"], "setup_wall_s": t["setup"],
+                                 "frames_per_s": summary["frames_per_s"], "end_to_end_s": round(summary["wall_s"], 3),
+                                 "end_to_end_frames_per_s": round(n / summary["wall_s"], 2)}))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--stage", type=Path, help="composed stage (default: compose stages/town.usda)")
+    ap.add_argument("--frames", type=int, default=16)
+    ap.add_argument("--warmup", type=int, default=2, help="frames rendered first, untimed (0: none)")
+    ap.add_argument("--size", default="512x320")
+    ap.add_argument("--views", default="defects:0.6:clear")
+    ap.add_argument("--formats", default="mmseg")
+    ap.add_argument("--device", default=None, help="cpu | cuda | cuda:N (default: the renderer's)")
+    ap.add_argument("--executor", default="local")
+    ap.add_argument("--workers", type=int, default=None, help="threads on a GPU, processes on the CPU")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args()
+    stage = args.stage
+    with tempfile.TemporaryDirectory() as tmp:
+        if stage is None:
+            from roadtwin_core.apps.compose.run import compose
+
+            stage = compose(REPO / "stages/town.usda", Path(tmp) / "town", preview=False).town
+        report(measure(stage, args))
+
+
+if __name__ == "__main__":
+    main()

