@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Optional
+from typing import Any, Callable, Optional
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -25,6 +25,19 @@ __all__ = ["reconstruct_app", "reconstruct_defects_command", "reconstruct_photo_
            "reconstruct_photos_command", "reconstruct_surface_command"]
 
 reconstruct_app = typer.Typer(help="Real sensor data -> road surface and defect models.", no_args_is_help=True)
+
+
+def _reconstructor_option(default: str) -> Any:
+    return typer.Option(default, "--reconstructor", help="reconstructor plugin")
+
+
+def _param_option() -> Any:
+    return typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}")
+
+
+def _license_option(what: str) -> Any:
+    return typer.Option(None, "--license", help=f"license recorded on every {what} (default: the first line of a "
+                        "LICENSE file beside the photos)")
 
 
 def _floats(text: Optional[str], n: tuple[int, ...], what: str) -> Optional[list[float]]:
@@ -50,16 +63,18 @@ def reconstruct_defects_command(
                                      "(Fan et al.): detect defect pixels only"),
     disparity_scale: float = typer.Option(1.0, "--disparity-scale", help="integer PNG disparity = value / scale (KITTI: 256)"),
     grid: float = typer.Option(0.01, "--grid", help="mesh grid step in m"),
+    road_mask: Optional[Path] = typer.Option(None, "--road-mask", help="road mask image, the disparity's size "
+                                             "(nonzero = road): pixels off it are neither road nor defect"),
     out: Path = typer.Option(..., "-o", "--out", help="output folder (replaced atomically): one defect asset per "
                              "instance, mask.png, instances.json"),
-    reconstructor: str = typer.Option("stereo_defects", "--reconstructor", help="reconstructor plugin"),
-    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
+    reconstructor: str = _reconstructor_option("stereo_defects"),
+    param: Optional[list[str]] = _param_option(),
 ) -> None:
     """Stereo pair or disparity map -> defect library assets and mask.png."""
     from ..apps.reconstruct import DefectInputs, reconstruct_defects
 
     inputs = DefectInputs(disparity=disparity, left=left, right=right, K=_floats(K, (4, 9), "--K"),
-                          baseline=baseline, transformed=transformed)
+                          baseline=baseline, transformed=transformed, road_mask=road_mask)
     done = reconstruct_defects(inputs, out, reconstructor=reconstructor, disparity_scale=disparity_scale, grid_m=grid,
                                params=parse_param_options(param))
     result = done.result
@@ -87,8 +102,8 @@ def reconstruct_surface_command(
     cam_from_lidar: Optional[Path] = typer.Option(None, "--cam-from-lidar", help="text file with the 4x4 "
                                                   "camera-from-LiDAR transform (one for all frames)"),
     no_align: bool = typer.Option(False, "--no-align", help="keep the input Z (no RANSAC ground plane to Z-up)"),
-    reconstructor: str = typer.Option("lidar_surface", "--reconstructor", help="reconstructor plugin"),
-    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
+    reconstructor: str = _reconstructor_option("lidar_surface"),
+    param: Optional[list[str]] = _param_option(),
 ) -> None:
     """LiDAR frames + poses -> road surface library asset (coarse stream).
 
@@ -118,29 +133,53 @@ def _road_labels(text: str) -> list[int] | None:
     return [int(v) for v in values]
 
 
+def _images_argument() -> Any:
+    return typer.Argument(..., help="photos (files, or folders of .jpg/.png)")
+
+
+def _labels_option() -> Any:
+    return typer.Option(..., "--labels", help="label folder: <image stem>.png, one class id per pixel")
+
+
+def _run_photo_command(run: Callable[..., Any], images: list[Path], labels: Path, classmap: str, rig: str,
+                       license_text: Optional[str], out: Path, reconstructor: str, param: Optional[list[str]],
+                       *, progress: bool = False) -> Any:
+    """What ``photos`` and ``photo-surfaces`` share: the typed :class:`PhotoInputs` from their
+    options, then ``run`` (with a frames bar when ``progress``: ``run`` reports over the frames)."""
+    from ..apps.reconstruct import PhotoInputs
+
+    preset, overrides = _rig_spec(rig)
+    inputs = PhotoInputs(images=list(images), labels=labels, classmap=classmap, rig=preset, rig_overrides=overrides,
+                         license=license_text)
+    if not progress:
+        return run(inputs, out, reconstructor=reconstructor, params=parse_param_options(param))
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console, transient=True, disable=not err_console.is_terminal) as bar:
+        task = bar.add_task("frames", total=None)
+        return run(inputs, out, reconstructor=reconstructor, params=parse_param_options(param),
+                   progress=lambda n, total: bar.update(task, completed=n, total=total))
+
+
 @reconstruct_app.command("photos")
 def reconstruct_photos_command(
-    images: list[Path] = typer.Argument(..., help="photos (files, or folders of .jpg/.png)"),
-    labels: Path = typer.Option(..., "--labels", help="label folder: <image stem>.png, one class id per pixel"),
+    images: list[Path] = _images_argument(),
+    labels: Path = _labels_option(),
     classmap: str = typer.Option("builtin:road_defects_br", "--classmap", help="class map of the labels: a TOML "
                                  "file or builtin:NAME (its classes filled from a defect type are reconstructed)"),
     rig: str = typer.Option("survey", "--rig", help="camera rig preset, optionally with overrides: "
                             "survey:pitch=-24,height=2.4,roll=0,hfov=60 (also width, height_px: the size the "
                             "rig is given at)"),
-    license_text: Optional[str] = typer.Option(None, "--license", help="license recorded on every asset (default: "
-                                               "the first line of a LICENSE file beside the photos)"),
+    license_text: Optional[str] = _license_option("asset"),
     out: Path = typer.Option(..., "-o", "--out", help="library folder (replaced atomically): NAME.usda + "
                              "NAME.geom.usda per instance, textures/, instances.json"),
-    reconstructor: str = typer.Option("photo_defects", "--reconstructor", help="reconstructor plugin"),
-    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
+    reconstructor: str = _reconstructor_option("photo_defects"),
+    param: Optional[list[str]] = _param_option(),
 ) -> None:
     """Labelled photos -> textured defect library assets (back-projected through the rig onto the road)."""
-    from ..apps.reconstruct import PhotoInputs, reconstruct_photos
+    from ..apps.reconstruct import reconstruct_photos
 
-    preset, overrides = _rig_spec(rig)
-    inputs = PhotoInputs(images=list(images), labels=labels, classmap=classmap, rig=preset, rig_overrides=overrides,
-                         license=license_text)
-    done = reconstruct_photos(inputs, out, reconstructor=reconstructor, params=parse_param_options(param))
+    done = _run_photo_command(reconstruct_photos, images, labels, classmap, rig, license_text, out, reconstructor,
+                              param)
     by_type: dict[str, int] = {}
     for m in done.result.models:
         by_type[m.defect_type] = by_type.get(m.defect_type, 0) + 1
@@ -151,30 +190,23 @@ def reconstruct_photos_command(
 
 @reconstruct_app.command("photo-surfaces")
 def reconstruct_photo_surfaces_command(
-    images: list[Path] = typer.Argument(..., help="photos (files, or folders of .jpg/.png)"),
-    labels: Path = typer.Option(..., "--labels", help="label folder: <image stem>.png, one class id per pixel"),
+    images: list[Path] = _images_argument(),
+    labels: Path = _labels_option(),
     classmap: str = typer.Option("builtin:road_defects_br", "--classmap", help="class map of the labels: its road "
                                  "class is cut from, its defect classes are kept away from"),
     rig: str = typer.Option("survey", "--rig", help="camera rig preset, optionally with overrides (as for "
                             "reconstruct photos)"),
-    license_text: Optional[str] = typer.Option(None, "--license", help="license recorded on every material "
-                                               "(default: the first line of a LICENSE file beside the photos)"),
+    license_text: Optional[str] = _license_option("material"),
     out: Path = typer.Option(..., "-o", "--out", help="materials folder (replaced atomically): NAME_diffuse.png, "
                              "NAME_roughness.png, NAME_normal.png per surface, materials.json"),
-    reconstructor: str = typer.Option("photo_surfaces", "--reconstructor", help="reconstructor plugin"),
-    param: Optional[list[str]] = typer.Option(None, "--param", help=f"reconstructor {PARAM_HELP}"),
+    reconstructor: str = _reconstructor_option("photo_surfaces"),
+    param: Optional[list[str]] = _param_option(),
 ) -> None:
     """Labelled photos -> seamless asphalt materials cut from their defect-free road (compose --road-textures)."""
-    from ..apps.reconstruct import PhotoInputs, reconstruct_photo_surfaces
+    from ..apps.reconstruct import reconstruct_photo_surfaces
 
-    preset, overrides = _rig_spec(rig)
-    inputs = PhotoInputs(images=list(images), labels=labels, classmap=classmap, rig=preset, rig_overrides=overrides,
-                         license=license_text)
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=err_console, transient=True, disable=not err_console.is_terminal) as bar:
-        task = bar.add_task("frames", total=None)
-        done = reconstruct_photo_surfaces(inputs, out, reconstructor=reconstructor, params=parse_param_options(param),
-                                          progress=lambda n, total: bar.update(task, completed=n, total=total))
+    done = _run_photo_command(reconstruct_photo_surfaces, images, labels, classmap, rig, license_text, out,
+                              reconstructor, param, progress=True)
     result = done.result
     console.print(f"wrote {out}: {len(result.surfaces)} surface(s) from {done.photos} photo(s) "
                   f"({len(result.skipped)} without a clean window)")

@@ -19,6 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Collection, Mapping, Sequence
 
+import numpy as np
+from PIL import Image, UnidentifiedImageError
+
 from ...errors import RoadtwinError
 from ...render.cameras import RIG_PRESETS
 from ...render.classmap import ClassMap, load_class_map
@@ -73,12 +76,16 @@ class DefectInputs:
     baseline: float | None = None               # stereo baseline, m
     transformed: bool = False                   # the map is already transformed: defect pixels only
     source: str | None = None                   # recorded on every model (default: the input path)
+    road_mask: Any = None                       # road mask image (file or array, nonzero = road), the
+                                                # disparity's size: pixels off it are neither road nor defect
 
     def as_dict(self) -> dict[str, Any]:
         out = {"disparity": self.disparity, "left": self.left, "right": self.right, "K": self.K,
                "baseline": self.baseline, "transformed": self.transformed}
         if self.source is not None:
             out["source"] = self.source
+        if self.road_mask is not None:
+            out["road_mask"] = self.road_mask
         return out
 
 
@@ -126,11 +133,52 @@ def _mask_files(masks: Sequence[Any]) -> list[Any]:
 
 
 def check_defect_inputs(inputs: DefectInputs) -> DefectInputs:
-    """A disparity map or a pair (not both), every file there."""
+    """A disparity map or a pair (not both), every file there, a road mask the disparity's size."""
     if inputs.disparity is not None and (inputs.left is not None or inputs.right is not None):
         raise RoadtwinError("give --disparity or --left/--right, not both")
     _require(_files(inputs.disparity, inputs.left, inputs.right))
+    if inputs.road_mask is not None:
+        _check_road_mask(inputs.road_mask, inputs.disparity if inputs.disparity is not None else inputs.left)
     return inputs
+
+
+def _check_road_mask(mask: Any, image: Any) -> None:
+    """``--road-mask``: a readable image of the same width and height as the disparity (that of
+    ``image``: the disparity map, or the left image a pair's disparity is computed on)."""
+    if isinstance(mask, (str, Path)) and not Path(mask).is_file():
+        raise RoadtwinError(f"{mask}: no such road mask (--road-mask)")
+    size = _image_size(mask, "road mask (--road-mask)")
+    try:
+        want = _image_size(image, "disparity")
+    except RoadtwinError:
+        return   # an unreadable disparity or left image: the plugin's own check names it
+    if size is not None and want is not None and size != want:
+        raise RoadtwinError(f"{mask if isinstance(mask, (str, Path)) else 'road mask array'}: the road mask is "
+                            f"{size[0]}x{size[1]} px, the disparity {want[0]}x{want[1]} px (--road-mask)")
+
+
+def _image_size(image: Any, what: str) -> tuple[int, int] | None:
+    """(width, height) of an array, a .npy, a .pfm or an image file (its header only); None when
+    there is nothing to size (no input, or a file the plugin reads and checks itself)."""
+    if image is None:
+        return None
+    if not isinstance(image, (str, Path)):
+        shape = np.shape(image)
+        return (int(shape[1]), int(shape[0])) if len(shape) >= 2 else None
+    path = Path(image)
+    try:
+        if path.suffix.lower() == ".npy":
+            shape = np.load(path, mmap_mode="r", allow_pickle=False).shape
+            return (int(shape[1]), int(shape[0])) if len(shape) >= 2 else None
+        if path.suffix.lower() == ".pfm":
+            with path.open("rb") as f:
+                f.readline()
+                width, height = f.readline().split()[:2]
+            return int(width), int(height)
+        with Image.open(path) as img:
+            return img.size
+    except (OSError, ValueError, EOFError, UnidentifiedImageError):
+        raise RoadtwinError(f"{path}: cannot read the {what} image") from None
 
 
 @dataclass

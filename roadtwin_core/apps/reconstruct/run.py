@@ -18,7 +18,7 @@ from ...errors import RoadtwinError
 from ...params import apply_params, make_params
 from ...plugins import PluginManager, get_plugin_manager
 from ...usd.library import DEFECT_CLASS
-from .inputs import (DefectInputs, PhotoInputs, SurfaceInputs, check_defect_inputs, check_photo_inputs,
+from .inputs import (DefectInputs, PhotoInputs, PhotoSet, SurfaceInputs, check_defect_inputs, check_photo_inputs,
                      check_surface_inputs)
 
 __all__ = ["DefectReconstruction", "PhotoReconstruction", "SurfaceReconstruction", "reconstruct_defects",
@@ -83,14 +83,7 @@ def reconstruct_photos(inputs: PhotoInputs, out: str | Path, *, reconstructor: s
     textured defect library assets, one per labelled defect instance (``compose --library``
     reads them). The class map's classes filled from a registered defect type (not a look-alike)
     are the ones reconstructed. ``params``: values for the reconstructor's ``Params`` (``--param``)."""
-    out = Path(out)
-    output_path(out, "dir")
-    pm = pm or get_plugin_manager()
-    photos = check_photo_inputs(inputs, defect_types(pm))
-    rec = _reconstructor(pm, reconstructor, "defects", "defects")
-    checked = _params(rec, reconstructor, {}, params)
-    result = rec.run(photos.as_dict(), checked)
-    return PhotoReconstruction(result, rec.write(result, out), len(photos.images))
+    return _run_photos(inputs, out, reconstructor, params, pm, ("defects", "defects"), lambda photos: {})
 
 
 def reconstruct_photo_surfaces(inputs: PhotoInputs, out: str | Path, *, reconstructor: str = "photo_surfaces",
@@ -100,13 +93,22 @@ def reconstruct_photo_surfaces(inputs: PhotoInputs, out: str | Path, *, reconstr
     seamless road materials cut from their defect-free road (``compose --road-textures`` reads
     it). The plugin reads what :class:`PhotoSet` gives, plus ``road_classes`` (the class map's
     road: :func:`~.inputs.road_classes`) and ``progress(done, total)`` over the frames."""
+    return _run_photos(inputs, out, reconstructor, params, pm, ("materials", "road materials"),
+                       lambda photos: {"road_classes": photos.lane_classes, "progress": progress})
+
+
+def _run_photos(inputs: PhotoInputs, out: str | Path, reconstructor: str, params: dict[str, Any] | None,
+                pm: PluginManager | None, produces: tuple[str, str],
+                extra: Callable[[PhotoSet], dict[str, Any]]) -> PhotoReconstruction:
+    """What both photo commands do: output checked, photos resolved, the plugin (``produces``:
+    its kind and how a message names it) run on the :class:`PhotoSet` plus ``extra(photos)``, written."""
     out = Path(out)
     output_path(out, "dir")
     pm = pm or get_plugin_manager()
     photos = check_photo_inputs(inputs, defect_types(pm))
-    rec = _reconstructor(pm, reconstructor, "materials", "road materials")
+    rec = _reconstructor(pm, reconstructor, *produces)
     checked = _params(rec, reconstructor, {}, params)
-    result = rec.run({**photos.as_dict(), "road_classes": photos.lane_classes, "progress": progress}, checked)
+    result = rec.run({**photos.as_dict(), **extra(photos)}, checked)
     return PhotoReconstruction(result, rec.write(result, out), len(photos.images))
 
 
