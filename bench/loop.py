@@ -9,7 +9,8 @@ with a rig of a stereo pair and a Livox Mid-360-like LiDAR), then
   /tf_static extrinsic, road points by their per-point labels, within CORRIDOR_M of the path; scored by the height error of the
   surface's vertices against the collision mesh (vertical rays): RMSE, all vertices and those off
   any defect;
-- ``reconstruct defects`` (``stereo_defects``) on every stereo pair, disparity from OpenCV SGBM on
+- ``reconstruct defects`` (``stereo_defects``) on every stereo pair, disparity from OpenCV SGBM,
+  refined to sub-pixel by Lucas-Kanade along the rows (``--subpixel``; 0 = off), on
   the rendered images (never the renderer's depth), cropped to the rows that see road within
   ROI_M (from the camera's pose and the road height under it), with the frame's paved pixels
   (semantic truth, eroded 3 px) as the road mask a segmentation network would give; for each true pothole in view (its ground-
@@ -24,7 +25,7 @@ highway layout (2 % crown on the lanes, 3 % shoulders, grades to 4 %, dense defe
 ``--surface iso8608:D``: the undulating road with several potholes a frame.
 
     PYTHONPATH=.:plugins .venv/bin/python bench/loop.py [--cases town,highway_D] [--duration 3]
-        [--size 1280x720] [--out out/loop] [--reuse]
+        [--size 1280x720] [--out out/loop] [--reuse] [--subpixel 6,2 | 0]
 
 Targets (issue 20): surface RMSE <= 5 mm; footprint IoU >= 0.8 and depth error <= 1 cm within
 10 m; >= 95 % of potholes in view found on undulating roads.
@@ -49,6 +50,7 @@ CASES = {"town": ("stages/town.usda", []),
 MIN_PX = 30
 NEAR_M = 10.0
 ROI_M = 15.0           # stereo: image rows whose road lies within this (m)
+SUBPIXEL = (6.0, 2.0)  # stereo: LK window (px), chosen on tests/plugins/test_stereo_subpixel.py's scenes
 CORRIDOR_M = 6.0       # LiDAR road points kept within this of the driven path
 RIG = """name = "loop"
 
@@ -200,7 +202,8 @@ def road_mask(semantic: np.ndarray, classes: list[str]) -> np.ndarray:
     return cv2.erode(paved.astype(np.uint8), np.ones((7, 7), np.uint8))
 
 
-def stereo_figures(bag: Bag, instances: dict, truth, classes: list[str]) -> dict:
+def stereo_figures(bag: Bag, instances: dict, truth, classes: list[str],
+                   subpixel: tuple[float, float] = SUBPIXEL) -> dict:
     from roadtwin_stereo import StereoDefects
 
     rec = StereoDefects()
@@ -209,7 +212,8 @@ def stereo_figures(bag: Bag, instances: dict, truth, classes: list[str]) -> dict
         fr = _crop(fr, road_rows(fr, truth, ROI_M))
         zmin = float(np.nanmin(np.where(fr["depth"] > 0, fr["depth"], np.nan)))
         maxd = int(16 * np.ceil(1.2 * fr["K"][0, 0] * fr["baseline"] / zmin / 16))
-        params = rec.Params(max_disparity=max(16, maxd))
+        params = rec.Params(max_disparity=max(16, maxd), subpixel_sigma_u_px=subpixel[0],
+                            subpixel_sigma_v_px=subpixel[1])
         res = rec.run({"left": fr["left"], "right": fr["right"], "K": fr["K"], "baseline": fr["baseline"],
                        "road_mask": road_mask(fr["semantic"], classes), "source": f"frame_{k:03d}"}, params)
         f = frame_figures(fr, res, instances, truth)
@@ -243,7 +247,11 @@ def main() -> None:
     ap.add_argument("--size", default="1280x720", help="stereo image size WxH")
     ap.add_argument("--out", type=Path, default=ROOT / "out" / "loop")
     ap.add_argument("--reuse", action="store_true", help="keep composed towns and drives already in --out")
+    ap.add_argument("--subpixel", default=",".join(f"{x:g}" for x in SUBPIXEL),
+                    help="Lucas-Kanade refinement window of SGBM's disparity: sigma along,across the rows (px); "
+                    "0 = SGBM's own sub-pixel step")
     args = ap.parse_args()
+    subpixel = tuple(float(x) for x in (args.subpixel + ",2").split(",")[:2])
     args.out.mkdir(parents=True, exist_ok=True)
     report = {}
     for case in args.cases.split(","):
@@ -255,14 +263,15 @@ def main() -> None:
         bag = Bag(drive)
         s = surface_figures(bag, summary["classes"], truth)
         _log(f"{case}: surface reconstructed and scored", t0)
-        st = stereo_figures(bag, summary["instances"], truth, summary["classes"])
+        st = stereo_figures(bag, summary["instances"], truth, summary["classes"], subpixel)
         _log(f"{case}: stereo frames reconstructed and scored", t0)
         report[case] = {"surface": s, "stereo": {k: v for k, v in st.items() if k != "rows"}, "observations": st["rows"]}
         print(f"== {case}: {summary['driven_m']:.1f} m, {summary['route']}")
         print(f"surface ({s['scans']} scans, {s['vertices']} vertices): height RMSE {s['rmse_mm']:.1f} mm "
               f"(off defects {s['rmse_off_defects_mm']:.1f} mm; median |err| {s['median_abs_mm']:.1f} mm, "
               f"bias {s['bias_mm']:+.1f} mm)   target <= 5 mm")
-        print(f"stereo ({st['frames']} frames, SGBM): {st['potholes_in_view_10m']} pothole views within {NEAR_M:g} m "
+        how = "SGBM" if subpixel[0] == 0 else f"SGBM + sub-pixel LK {subpixel[0]:g}x{subpixel[1]:g} px"
+        print(f"stereo ({st['frames']} frames, {how}): {st['potholes_in_view_10m']} pothole views within {NEAR_M:g} m "
               f"({st['unique_potholes']} potholes; up to {st['per_frame_max']} a frame, mean "
               f"{st['per_frame_mean']:.1f}): found {100 * st['found_share']:.1f} % (target >= 95 %; at any distance "
               f"{100 * st['found_share_all_dist']:.1f} %)")
