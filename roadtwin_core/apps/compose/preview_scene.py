@@ -165,9 +165,11 @@ class PreviewTown:
         uv = road_st[faces]
         if defect.any():
             uv[defect] = np.asarray(planar_st(vertices), np.float32)[faces[defect]]
-            for k in np.unique(place[defect]):
-                if self.placements[k].model.look is not None:       # a textured model: its own st
-                    sel = place == k
+            # textured models: their own st; faces grouped by placement once (not a scan per placement)
+            order = np.flatnonzero(defect)[np.argsort(place[defect], kind="stable")]
+            ks, starts = np.unique(place[order], return_index=True)
+            for k, sel in zip(ks, np.split(order, starts[1:])):
+                if self.placements[k].model.look is not None:
                     corners = vertices[faces[sel]].reshape(-1, 3)
                     uv[sel] = np.asarray(defect_st(self.placements[k], corners), np.float32).reshape(-1, 3, 2)
         # materials: only those of the faces kept, decoded once each (a 1024 px material is ~30 MB)
