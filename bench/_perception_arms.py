@@ -45,6 +45,7 @@ class Config:
     warmup: int = 100
     subset_seed: int = 0
     size: tuple | None = (512, 320)
+    style: str | None = None      # "fda:BETA": synthetic frames take real frames' low frequencies
 
 
 def run_name(arm: str, fraction: float | None) -> str:
@@ -101,13 +102,14 @@ def arm_phases(arm: str, cfg: Config, seed: int, mix: dict | None = None) -> lis
     raise RoadtwinError(f"--arms: {arm!r} is not one of {', '.join(ARMS)}")
 
 
-def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path | None, log=print):
+def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path | None, log=print, style_dev=None):
     """The P-step synthetic model of a seed (phase 1 of (b) and (e)): loaded from ``cache`` when
     a run already made it, else trained (and saved there, atomically)."""
     torch = _segnet_torch()
     phase = arm_phases("pretrain", cfg, seed)[0]
+    style = f"_{cfg.style.replace(':', '')}_r{style_dev.shape[0]}" if cfg.style and style_dev is not None else ""
     key = (f"pretrain_seed{seed}_{cfg.encoder}_w{cfg.width}_P{cfg.pretrain_steps}_b{cfg.batch}"
-           f"_n{synth_dev[0].shape[0]}.pt")
+           f"_n{synth_dev[0].shape[0]}{style}.pt")
     model = fresh_model(cfg, seed, device)
     path = Path(cache) / key if cache else None
     if path is not None and path.exists():
@@ -115,7 +117,8 @@ def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path 
         model.load_state_dict(saved["state"])
         log(f"  loaded the synthetic phase 1 of seed {seed} from {path}")
         return model, saved["phase"]
-    info = train_phase(model, {"synth": synth_dev}, phase, cfg, device, log)
+    data = {"synth": synth_dev, **({"style": style_dev} if style_dev is not None else {})}
+    info = train_phase(model, data, phase, cfg, device, log)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".tmp{id(model)}")
@@ -125,8 +128,10 @@ def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path 
 
 
 def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Frames | None, device,
-              mix: dict | None = None, cache: Path | None = None, log=print):
-    """The model of one arm, trained; returns (model, phases info)."""
+              mix: dict | None = None, cache: Path | None = None, log=print, style: Frames | None = None):
+    """The model of one arm, trained; returns (model, phases info). With ``cfg.style``, the
+    synthetic frames take their low frequencies from ``style``'s images (real frames the arm
+    may see; their labels are never read)."""
     phases = arm_phases(arm, cfg, seed, mix)
     data = {}
     if real is not None and arm in ("real", "pretrain", "mixed", "paste"):
@@ -135,8 +140,10 @@ def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Fram
         if synth is None:
             raise RoadtwinError(f"--arms {arm}: needs --synthetic DIR")
         data["synth"] = to_device(synth, device)
+        if cfg.style and style is not None:
+            data["style"] = to_device(style, device)[0]
     if arm in ("pretrain", "zeroshot"):
-        model, first = pretrained_synthetic(cfg, seed, data["synth"], device, cache, log)
+        model, first = pretrained_synthetic(cfg, seed, data["synth"], device, cache, log, data.get("style"))
         infos = [first]
     else:
         model = fresh_model(cfg, seed, device)
@@ -150,7 +157,8 @@ def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: 
     """One (arm, fraction, seed) run: train, evaluate per frame; the result a run JSON holds."""
     t0 = time.perf_counter()
     sub = real_subset(real, fraction, cfg.subset_seed) if arm != "zeroshot" else None
-    model, infos = train_arm(arm, cfg, seed, sub, synth, device, mix, cache, log)
+    # the style frames: the arm's real frames; zero-shot sees no real label, only the train images
+    model, infos = train_arm(arm, cfg, seed, sub, synth, device, mix, cache, log, style=sub if sub is not None else real)
     t1 = time.perf_counter()
     i, u, kept = evaluate(model, to_device(evalset, device), device, cfg.batch, set(keep))
     steps = sum(p["steps"] for p in infos)

@@ -71,7 +71,7 @@ def cv_one(fraction: float, point: dict, fold: int, k: int, real: Frames, synth:
     held = folds[fold]
     rest = np.setdiff1d(np.arange(len(sub.stems)), held)
     model, infos = train_arm("mixed", cv_config(cfg, cv_steps), seed, sub.subset(rest), synth, device, point,
-                             log=log)
+                             log=log, style=sub.subset(rest))
     i, u, _ = evaluate(model, to_device(sub.subset(held), device), device, cfg.batch)
     return {"fraction": fraction, "point": point, "fold": fold, "folds": k, "by": by,
             "held_out": sorted({road_of(s) for s in sub.subset(held).stems}) if by == "road" else f"{len(held)} frames",

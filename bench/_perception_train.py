@@ -107,6 +107,40 @@ def copy_paste(images, labels, donor_images, donor_labels, gen, prob: float = 0.
     return torch.where(paste[..., None], d_img, images), torch.where(paste, torch.full_like(labels, POTHOLE), labels)
 
 
+def parse_style(text: str | None) -> float | None:
+    """``fda:BETA`` -> BETA (the share of the shorter side whose low frequencies are swapped)."""
+    if not text:
+        return None
+    kind, _, value = text.partition(":")
+    try:
+        beta = float(value or 0.01)
+    except ValueError:
+        beta = -1.0
+    if kind != "fda" or not 0 < beta < 0.5:
+        from roadtwin_core.errors import RoadtwinError
+
+        raise RoadtwinError(f"--style: {text!r} is not fda:BETA with 0 < BETA < 0.5 (e.g. fda:0.01)")
+    return beta
+
+
+def fda(source, target, beta: float):
+    """Fourier domain adaptation (Yang & Soatto, CVPR 2020): each source frame keeps its phase
+    (layout, edges: what the labels describe) and takes the lowest-frequency amplitudes of a
+    target frame (global colour, illumination, haze: the look of the real camera). uint8 (B,H,W,3)
+    in and out; ``beta`` is the swapped square's side as a share of the shorter image side."""
+    torch = _torch()
+    s = source.permute(0, 3, 1, 2).float()
+    t = target.permute(0, 3, 1, 2).float()
+    h, w = s.shape[-2:]
+    b = max(1, int(min(h, w) * beta))
+    fs, ft = torch.fft.rfft2(s), torch.fft.rfft2(t)      # rfft: the columns' negative side is implied
+    amp, phase, amp_t = fs.abs(), fs.angle(), ft.abs()
+    amp[..., :b, :b] = amp_t[..., :b, :b]
+    amp[..., h - b:, :b] = amp_t[..., h - b:, :b]
+    out = torch.fft.irfft2(torch.polar(amp, phase), s=(h, w))
+    return out.round_().clamp_(0, 255).to(torch.uint8).permute(0, 2, 3, 1)
+
+
 def seg_loss(logits, target):
     """Cross-entropy + soft Dice over the foreground classes present, for thin cracks and small
     potholes."""
@@ -157,6 +191,8 @@ def train_phase(model, data: dict, phase: Phase, cfg, device, log=print) -> dict
     dev = next(iter(data.values()))[0].device
     gen = torch.Generator(device=dev).manual_seed(phase.seed)
     streams = {s: Stream(data[s][0].shape[0], gen, dev) for s, k in phase.counts.items() if k > 0}
+    beta = parse_style(cfg.style) if "style" in data else None
+    styles = Stream(data["style"].shape[0], gen, dev) if beta else None
     donors = None
     if phase.paste:
         labels = data["real"][1]
@@ -172,6 +208,8 @@ def train_phase(model, data: dict, phase: Phase, cfg, device, log=print) -> dict
             xi, yi = data[s][0][idx], data[s][1][idx]
             if s == "real" and donors is not None:
                 xi, yi = copy_paste(xi, yi, *donors, gen)
+            if s == "synth" and styles is not None:
+                xi = fda(xi, data["style"][styles.take(xi.shape[0])], beta)
             parts_x.append(xi)
             parts_y.append(yi)
         x, y = augment(torch.cat(parts_x), torch.cat(parts_y), gen, train=True)

@@ -56,6 +56,7 @@ from _perception_data import check_class_maps, load_frames, pack, parse_size, re
 from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
 from _perception_report import iou_table, load_runs, markdown, summarize  # noqa: E402
 from _perception_suite import plan, run_suite  # noqa: E402
+from _perception_train import parse_style  # noqa: E402
 
 
 # ------------------------------------------------------------------------------ inputs
@@ -80,13 +81,15 @@ def parse_arms(names) -> list[str]:
 
 def config_of(args) -> Config:
     return Config(steps=args.steps, pretrain_steps=args.pretrain_steps, batch=args.batch, lr=args.lr, width=args.width,
-                  encoder=args.encoder, subset_seed=args.subset_seed, size=parse_size(args.size))
+                  encoder=args.encoder, subset_seed=args.subset_seed, size=parse_size(args.size),
+                  style=getattr(args, "style", None))
 
 
 def prepare(args, log=print) -> dict:
     """Everything checked before a step is trained: encoder, class maps, folders, a pothole frame
     in every fraction; frames decoded once into OUT/shared (the suite's processes map them)."""
     arms, cfg = parse_arms(args.arms), config_of(args)
+    parse_style(cfg.style)                       # a bad --style: one line, before any data
     if cfg.encoder != "scratch":
         make_model(cfg)                          # a missing encoder wheel: one line, before any data
     train_dir, eval_dir = _folders(args)
@@ -234,6 +237,8 @@ def _run_options(t) -> None:
     t.add_argument("--encoder", choices=_segnet.ENCODERS, default=_segnet.DEFAULT_ENCODER)
     t.add_argument("--width", type=int, default=32, help="scratch: U-Net base channels; efficientnet-lite0: decoder x width/32")
     t.add_argument("--size", default="512x320", help="train/eval size WIDTHxHEIGHT (default 512x320)")
+    t.add_argument("--style", default=None, help="fda:BETA: Fourier domain adaptation of the synthetic frames to "
+                   "the arm's real train images (zero-shot: all train images, never their labels); e.g. fda:0.01")
     t.add_argument("--limit-frames", type=int, default=None, help="first N frames of each folder (smoke runs)")
     t.add_argument("--device", default=None, help="cuda or cpu (default: cuda when there is one)")
     t.add_argument("--mix", help="mixed arm by hand, RATIO:SCHEDULE (skips the cross-validation)")

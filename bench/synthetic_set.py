@@ -56,6 +56,8 @@ SCENES = (
     Scene("highway_a", "stages/highway.usda", 11, 1200),
     Scene("highway_b", "stages/highway.usda", 12, 1500, surface="iso8608:C:0.2"),
     Scene("highway_c", "stages/highway.usda", 13, 1000, surface="iso8608:A:0.2"),
+    Scene("highway_d", "stages/highway.usda", 14, 1200, surface="iso8608:B:0.2"),
+    Scene("highway_e", "stages/highway.usda", 15, 1200, surface="iso8608:C:0.2"),
     Scene("town", "stages/town.usda", 5, 300, road_photo=2),
     Scene("town01", "stages/town01.usda", 7, 1500),
 )
@@ -63,16 +65,32 @@ SCENES = (
 # lane at their period (docs/realism/README.md), a pattern no real road has.
 
 
-def weighted_layout(src: Path, dst: Path, lookalikes: bool) -> Path:
-    """A copy of ``src`` whose compose rules weight the look-alike types in."""
+def parse_weights(text: str | None) -> dict[str, float]:
+    """``pothole=2,crack=12`` -> {"pothole": 2.0, "crack": 12.0} (defect-type weights of the rules)."""
+    weights = {}
+    for item in filter(None, (text or "").split(",")):
+        kind, _, value = item.partition("=")
+        try:
+            weights[kind.strip()] = float(value)
+        except ValueError:
+            sys.exit(f"--weights: {item!r} is not TYPE=WEIGHT")
+    return weights
+
+
+def weighted_layout(src: Path, dst: Path, lookalikes: bool, weights: dict[str, float] | None = None) -> Path:
+    """A copy of ``src`` whose compose rules weight the look-alike types in (and, with
+    ``weights``, the defect types as given)."""
     layer = Sdf.Layer.FindOrOpen(str(src))
     out = Sdf.Layer.CreateNew(str(dst))
     out.TransferContent(layer)
     root = out.GetPrimAtPath(out.defaultPrim and f"/{out.defaultPrim}" or out.rootPrims[0].path)
-    if lookalikes:
-        for kind, w in LOOKALIKE_WEIGHTS.items():
-            Sdf.AttributeSpec(root, f"roadtwin:rules:weight:{kind}", Sdf.ValueTypeNames.Double,
-                              Sdf.VariabilityVarying, True).default = w
+    chosen = {**(LOOKALIKE_WEIGHTS if lookalikes else {}), **(weights or {})}
+    if chosen:
+        for kind, w in chosen.items():
+            name = f"roadtwin:rules:weight:{kind}"
+            spec = root.attributes.get(name) or Sdf.AttributeSpec(root, name, Sdf.ValueTypeNames.Double,
+                                                                  Sdf.VariabilityVarying, True)
+            spec.default = w
     out.Save()
     return dst
 
@@ -118,7 +136,8 @@ def compose_scene(scene: Scene, args, work: Path, index: int) -> float:
     work.mkdir(parents=True)
     log = work / "log.txt"
     cli = [sys.executable, "-m", "roadtwin_core.cli"]
-    layout = weighted_layout(REPO / scene.layout, work / "layout.usda", not args.no_lookalikes)
+    layout = weighted_layout(REPO / scene.layout, work / "layout.usda", not args.no_lookalikes,
+                             parse_weights(args.weights))
     compose = [*cli, "compose", str(layout), "--defects", str(scene.defects), "--seed", str(scene.seed),
                "--props", "none" if args.no_props else "default", "--no-preview", "-o", str(work / "town")]
     if scene.surface:
@@ -189,6 +208,8 @@ def main() -> None:
     ap.add_argument("--phase", choices=("compose", "render", "all"), default="all",
                     help="compose the scenes, render+pack them, or both (two GPU calls: each under the call limit)")
     ap.add_argument("--jobs", type=int, default=1, help="scenes at once (each compose/render is its own process)")
+    ap.add_argument("--weights", help="defect-type weights of every scene's rules, e.g. pothole=2,crack=12 (to bring "
+                    "the frames' pothole and crack pixel shares near the real train frames')")
     ap.add_argument("--no-lookalikes", action="store_true")
     ap.add_argument("--no-props", action="store_true")
     ap.add_argument("--no-photo", action="store_true")

