@@ -104,6 +104,20 @@ def seam_ratio(tile: np.ndarray, band: int | None = None) -> dict[str, float]:
     return out
 
 
+def period_correlation(tile: np.ndarray, lag: int) -> dict[str, float]:
+    """The luminance's normalised circular autocorrelation at ``lag`` texels along the columns
+    (s, along travel) and the rows (t): the tile repeats, so this is the correlation of the
+    road with itself ``lag`` texels on over any stretch of it. 1 where a ``lag``-texel window
+    is repeated; an aperiodic texture of the same grain measures near 0 (its coarse blotches
+    aside). Wiener-Khinchin: the inverse FFT of the power spectrum."""
+    lum = luminance(tile) if tile.ndim == 3 else tile.astype(np.float64)
+    lum = lum - lum.mean()
+    power = np.abs(np.fft.rfft2(lum)) ** 2
+    auto = np.fft.irfft2(power, s=lum.shape)
+    auto /= max(float(auto[0, 0]), 1e-12)
+    return {"columns": float(auto[0, lag % lum.shape[1]]), "rows": float(auto[lag % lum.shape[0], 0])}
+
+
 def derived_maps(tile_rgb: np.ndarray, texel_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(roughness (n, n) in 0..1, unit normal (n, n, 3) in tangent space: x along columns
     (s), y up the rows (t), z out) of a periodic tile, as :mod:`.patch` derives them."""

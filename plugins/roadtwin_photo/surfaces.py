@@ -18,16 +18,22 @@ as ``roadMaterial`` variants beside the procedural ones.
 3. Each window back-projected through the rig at the procedural asphalt's texel
    (``ST_TILE_M / size``), at one resolution all over (its coarsest photo sample along and
    across travel: a forward camera sees a window's near end sharper than its far end), turned
-   so that the texture's s runs along travel and t to the left
-   (lane-aligned st), made seamless (:mod:`.seamless`, seam measured), repeated ``k`` times a
-   side, with roughness and normal maps derived from it. A photo holds light x albedo x
+   so that the texture's s runs along travel and t to the left (lane-aligned st).
+   A window smaller than ``ST_TILE_M`` (the usual case: about 2 m) is not repeated k x k, which
+   would put its stains and wheel paths back every window, a band across the lane no real road
+   has; with up to ``sources - 1`` windows of other frames that look like it (same kind of
+   road) it is quilted into one whole tile (toroidal image quilting with minimum-error boundary
+   cuts, :mod:`.quilting`, :mod:`.quilted`, :mod:`.surface_tiles`; its period correlation is
+   recorded). ``quilt=false``, or a window of ``ST_TILE_M``, makes the one window seamless
+   (:mod:`.seamless`) and repeats it ``k`` times a side. Seams are measured; roughness and
+   normal maps are derived from the colour. A photo holds light x albedo x
    exposure: all surfaces are scaled in linear light by one factor that brings their median
    luminance to ``road_albedo`` (the town's asphalt), so lighter and darker ones stay so.
 
 :meth:`PhotoSurfaces.write` writes ``<name>_diffuse.png``, ``<name>_roughness.png``,
 ``<name>_normal.png`` (the procedural set's files and sizes: normal at 1/2, roughness at 1/4)
-and ``materials.json`` (``roadtwin:source``: the frame and its license; the window on the road,
-its ground sample distance and seam measure), replacing the folder atomically.
+and ``materials.json`` (``roadtwin:source``: the frames and their license; the windows on the
+road, the ground sample distance, seam and period measures), replacing the folder atomically.
 """
 from __future__ import annotations
 
@@ -44,17 +50,14 @@ from roadtwin_core import RoadtwinError, check_params, field
 from roadtwin_core.atomic import atomic_output_dir
 from roadtwin_core.usd import safe_prim_name
 
-from .rectify import OrthoGrid, PhotoRig, rectify
-from .road_area import (CleanParams, SearchView, axis_samples_m, clean_area, ground_sample_m, largest_square,
-                        search_view, square_at, uniform_resolution)
-from .seamless import (derived_maps, encode_normal, linear_luminance, linear_to_srgb8, make_seamless, seam_ratio,
-                       srgb_to_linear)
 from .photo_io import frame_pairs, license_for, read_label, read_rgb, rig_from
+from .quilted import same_road
+from .rectify import PhotoRig
+from .road_area import CleanParams, SearchView, clean_area, largest_square, search_view, square_at
+from .seamless import encode_normal, linear_luminance
+from .surface_tiles import ST_TILE_M, Surface, as_albedo, cut_surface, quilt_surface
 
 MATERIALS_FILE = "materials.json"
-# metres of road per texture repeat: roadtwin_core.looks.ST_TILE_M (not public to plugins);
-# compose --road-textures refuses a materials.json whose st_tile_m differs from it
-ST_TILE_M = 4.0
 SHADE_SCALE_M = 0.1
 
 
@@ -80,6 +83,18 @@ class PhotoSurfacesParams:
     road_albedo: float = field(0.12, lo=0.0, hi=1.0, doc="linear luminance the surfaces' median is scaled to (one "
                                "factor for all: lighter and darker surfaces stay so; asphalt_worn: 0.12); 0 keeps "
                                "the photos' exposure")
+    quilt: bool = field(True, doc=f"a window smaller than {ST_TILE_M:g} m makes the tile by image quilting (with "
+                        "the windows of its kind of road) instead of repeating k x k (a band every window)")
+    sources: int = field(4, lo=1, hi=16, doc="windows a quilted surface draws its blocks from: its own and the "
+                         "nearest in colour and contrast")
+    same_road: float = field(1.0, lo=0.0, hi=10.0, doc="farthest (standardised L*, chroma, contrast) another "
+                             "frame's window may be from the surface's own to lend it blocks")
+    patch_m: float = field(0.5, lo=0.05, hi=ST_TILE_M / 2, doc="quilting block side (m), a sixth more with its "
+                           "overlap")
+    flatten_m: float = field(0.25, lo=0.0, hi=ST_TILE_M, doc="quilting: colour that varies over more than this "
+                             "(m, a Gaussian's sigma) is flattened in its windows (it would band every repeat); 0 "
+                             "keeps it")
+    seed: int = field(0, lo=0, hi=2**31 - 1, doc="seed of the quilting's choices among equally good blocks")
 
 
 @dataclass
@@ -93,16 +108,6 @@ class Candidate:
     features: np.ndarray             # mean L*, chroma, contrast (8-bit Lab)
     gsd_m: float = 0.0               # the window's worst ground sample (m per pixel)
     shade: float = 0.0               # decimetre-scale light variation / mean lightness
-
-
-@dataclass
-class Surface:
-    name: str
-    candidate: Candidate
-    tile: np.ndarray                 # (N, N, 3) uint8 sRGB, one ST_TILE_M repeat
-    roughness: np.ndarray            # (N, N) float 0..1
-    normal: np.ndarray               # (N, N, 3) unit vectors
-    record: dict
 
 
 @dataclass
@@ -151,11 +156,18 @@ class PhotoSurfaces:
             raise RoadtwinError(f"{where}: no clean road area of at least {p.min_window_m * (1 + p.overlap):.2f} m a "
                                 f"side ({skipped[0]['why'] if len(pairs) == 1 else 'in any of them'}): nothing to cut")
         chosen = select(candidates, p.count)
+        pool = sharp_pool(candidates, p.count)
+        scale = np.array([c.features for c in candidates]).std(axis=0) + 1e-9
         surfaces, names = [], set()
-        for c in chosen:
+        for i, c in enumerate(chosen):
             name = _unique(safe_prim_name(f"photo_{c.image.stem.split('_')[0]}"), names)
             license_text = inputs.get("license") or license_for(c.image)
-            surfaces.append(cut_surface(name, c, rig, views, p, license_text))
+            if p.quilt and c.repeats > 1:
+                group = same_road(c, pool, chosen, p.sources, p.same_road, scale)
+                rng = np.random.default_rng([p.seed, i])
+                surfaces.append(quilt_surface(name, group, rig, views, p, inputs.get("license"), rng))
+            else:
+                surfaces.append(cut_surface(name, c, rig, views, p, license_text))
         if p.road_albedo > 0:
             factor = p.road_albedo / max(float(np.median([linear_luminance(s.tile) for s in surfaces])), 1e-4)
             surfaces = [as_albedo(s, factor) for s in surfaces]
@@ -241,8 +253,7 @@ def select(candidates: list[Candidate], count: int) -> list[Candidate]:
     """Up to ``count`` candidates: the sharper half (window ground sample at most the median)
     when it holds ``count``; the biggest windows first (fewest repeats); within that, greedy
     farthest-point in standardised features, starting from the frame with the most clean road."""
-    sharp = [c for c in candidates if c.gsd_m <= float(np.median([q.gsd_m for q in candidates]))]
-    pool = sorted(sharp if len(sharp) >= count else candidates, key=lambda c: (c.repeats, -c.clean_m, str(c.image)))
+    pool = sorted(sharp_pool(candidates, count), key=lambda c: (c.repeats, -c.clean_m, str(c.image)))
     chosen = [pool[0]]
     rest = pool[1:]
     feats = np.array([c.features for c in candidates])
@@ -257,63 +268,7 @@ def select(candidates: list[Candidate], count: int) -> list[Candidate]:
     return chosen
 
 
-def cut_surface(name: str, c: Candidate, rig: PhotoRig, views: dict, p: PhotoSurfacesParams,
-                license_text: str) -> Surface:
-    """Back-project the candidate's window at the tile's texel, make it seamless, derive maps."""
-    n = int(round(p.size / c.repeats))
-    m = max(2, int(round(n * p.overlap)))
-    texel = ST_TILE_M / (n * c.repeats)
-    rgb = read_rgb(c.image)
-    h, w = rgb.shape[:2]
-    search = views[(w, h)].grid
-    x_top, y_left = search.x_max - c.row0 * search.texel, search.y_max - c.col0 * search.texel
-    fine = OrthoGrid(x_top, y_left, texel, n + m, n + m)
-    along_m, across_m = axis_samples_m(rig, fine, w, h)
-    ortho = rectify(rgb, rig, fine)                           # rows forward-up, columns left-to-right
-    if p.uniform:
-        ortho = uniform_resolution(ortho, texel, along_m, across_m)
-    # texture orientation: columns along travel (s), rows from left (top, t = 1) to right
-    crop = np.rot90(ortho, -1)
-    tile = np.clip(make_seamless(crop, n) + 0.5, 0, 255).astype(np.uint8)
-    gsd = _gsd_range(rig, fine, w, h)
-    record = {
-        "source": f"photo {c.image} (road window {ST_TILE_M / c.repeats:.3f} m, {x_top - (n + m) * texel:.2f}.."
-                  f"{x_top:.2f} m ahead); license: {license_text}",
-        "frame": str(c.image), "label": str(c.label), "license": license_text,
-        "window_m": round(ST_TILE_M / c.repeats, 6), "repeats": c.repeats, "texel_m": texel,
-        "overlap_texels": m, "window_road_m": {"x": [round(x_top - (n + m) * texel, 4), round(x_top, 4)],
-                                               "y": [round(y_left - (n + m) * texel, 4), round(y_left, 4)]},
-        "ground_sample_m": [round(v, 5) for v in gsd], "clean_square_m": round(c.clean_m, 3),
-        "shade": round(c.shade, 4), "photo_sample_m": {"along": round(along_m, 5), "across": round(across_m, 5)},
-        "uniform_resolution": p.uniform,
-        "seam_ratio": seam_ratio(tile), "seam_ratio_unblended": seam_ratio(crop[:n, :n]),
-        "lab_mean_lightness": round(float(c.features[0]), 2), "lab_mean_chroma": round(float(c.features[1]), 2),
-        "lab_lightness_std": round(float(c.features[2]), 2), "rig": asdict(rig),
-        "doc": f"asphalt photographed in {c.image.name} ({license_text.split(' (')[0]}), seamless, repeating every "
-               f"{ST_TILE_M / c.repeats:g} m",
-    }
-    return with_maps(Surface(name, c, tile, None, None, record))
-
-
-def with_maps(s: Surface) -> Surface:
-    """Roughness and normal derived from the one-window tile, then all three repeated k x k."""
-    roughness, normal = derived_maps(s.tile, s.record["texel_m"])
-    k = s.candidate.repeats
-    return Surface(s.name, s.candidate, s.tile, roughness, normal, s.record) if k == 1 else Surface(
-        s.name, s.candidate, np.tile(s.tile, (k, k, 1)), np.tile(roughness, (k, k)), np.tile(normal, (k, k, 1)),
-        s.record)
-
-
-def as_albedo(s: Surface, factor: float) -> Surface:
-    """A photo holds light x albedo x exposure: scaled in linear light by one factor common to
-    all surfaces, the maps derived again from the scaled colour."""
-    n = s.tile.shape[0] // s.candidate.repeats
-    one = linear_to_srgb8(srgb_to_linear(s.tile[:n, :n]) * factor)
-    record = {**s.record, "albedo_scale": round(factor, 6), "mean_linear_luminance": round(linear_luminance(one), 5)}
-    return with_maps(Surface(s.name, s.candidate, one, None, None, record))
-
-
-def _gsd_range(rig: PhotoRig, grid: OrthoGrid, width: int, height: int) -> tuple[float, float]:
-    coarse = OrthoGrid(grid.x_max, grid.y_max, grid.texel * grid.rows / 8, 8, 8)
-    g = ground_sample_m(rig, coarse, width, height)
-    return float(g.min()), float(g.max())
+def sharp_pool(candidates: list[Candidate], count: int) -> list[Candidate]:
+    """The candidates whose window ground sample is at most the median, when they are ``count``."""
+    sharp = [c for c in candidates if c.gsd_m <= float(np.median([q.gsd_m for q in candidates]))]
+    return sharp if len(sharp) >= count else candidates

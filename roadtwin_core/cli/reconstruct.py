@@ -212,7 +212,9 @@ def reconstruct_photo_surfaces_command(
                   f"({len(result.skipped)} without a clean window)")
     for s in result.surfaces:
         r = s.record
-        console.print(f"  {s.name}: {r['window_m']:g} m window x{r['repeats']} from {Path(r['frame']).name}, "
+        made = (f"{len(r['sources'])} window(s) quilted, its own {r['window_m']:g} m" if r.get("sources")
+                else f"{r['window_m']:g} m window x{r['repeats']}")
+        console.print(f"  {s.name}: {made} from {Path(r['frame']).name}, "
                       f"seam ratio {max(r['seam_ratio'].values()):.2f} "
                       f"(unblended {max(r['seam_ratio_unblended'].values()):.1f})")
 

@@ -4,6 +4,11 @@
 - on a real train frame, the written tile repeats without a seam: the mean absolute luminance
   step across its wrap is like the steps just inside it (measured here on the PNG), while the
   same window cut without blending shows a seam several times stronger;
+- no period at the window's size: a window smaller than the 4 m tile, repeated k x k (the old
+  output, ``quilt=false``), correlates 1.0 with itself a window further on (closed form); the
+  quilted tile of the same frame far less, its wrap still seamless; toroidal image quilting of a
+  synthetic exemplar likewise, keeping its mean and contrast; the minimum-error boundary cut is
+  the least of all paths (brute force);
 - back-projection scale and orientation: a road painted with known periods (25 cm along travel,
   40 cm across), seen through the survey rig, comes back with exactly those periods in texels
   of ``ST_TILE_M / size`` (FFT peak), travel along the texture's columns;
@@ -32,6 +37,7 @@ from roadtwin_core import ComposeRules, RoadSegment, RoadtwinError, TownLayout
 from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.looks import ST_TILE_M
 from roadtwin_core.usd import validate_stage, write_layout
+from roadtwin_photo.quilting import min_cut_path, quilt_torus
 from roadtwin_photo.surfaces import PhotoSurfaces, PhotoSurfacesParams
 
 REPO = Path(__file__).resolve().parents[2]
@@ -80,18 +86,18 @@ def _seam_over_inside(lum: np.ndarray, axis: int) -> float:
     return seam / inside
 
 
+def _shift_correlation(lum: np.ndarray, lag: int, axis: int) -> float:
+    """Pearson correlation of the image with itself moved ``lag`` texels on (wrapping)."""
+    return float(np.corrcoef(lum.ravel(), np.roll(lum, lag, axis=axis).ravel())[0, 1])
+
+
 def test_real_frame_tile_has_no_seam(real_materials):
     meta = json.loads((real_materials / "materials.json").read_text())
     rec = meta["materials"][0]
-    assert rec["frame"] == str(FRAME) and "MIT License" in rec["license"] and rec["source"].startswith("photo ")
+    assert rec["frame"] == str(FRAME) and "MIT License" in rec["license"] and rec["source"].startswith("photo")
     diffuse = cv2.imread(str(real_materials / rec["diffuse"]))
-    k = rec["repeats"]
-    n = diffuse.shape[0] // k
-    assert diffuse.shape[:2] == (n * k, n * k)
-    one = diffuse[:n, :n]
-    if k > 1:                                               # the k x k repeats are exact copies
-        assert np.array_equal(diffuse[n:2 * n, :n], one) and np.array_equal(diffuse[:n, n:2 * n], one)
-    lum = _luminance(one)
+    assert diffuse.shape[:2] == (FAST["size"],) * 2 and rec["repeats"] == 1 and "quilting" in rec["synthesis"]["method"]
+    lum = _luminance(diffuse)
     for axis in (0, 1):
         assert 0.5 < _seam_over_inside(lum, axis) < 1.5, (axis, rec["seam_ratio"])
     # the same window without blending: its wrap is a visible seam (the measure can fail)
@@ -99,6 +105,70 @@ def test_real_frame_tile_has_no_seam(real_materials):
     assert cv2.imread(str(real_materials / rec["roughness"]), cv2.IMREAD_UNCHANGED).ndim == 2
     normal = cv2.imread(str(real_materials / rec["normal"]))[..., ::-1].astype(float) / 127.5 - 1
     assert np.all(normal[..., 2] > 0.3) and abs(np.linalg.norm(normal, axis=-1).mean() - 1) < 0.02
+
+
+def test_no_band_at_the_window_period(real_materials, tmp_path):
+    """The old output (the window repeated k x k) correlates 1.0 with itself a window on; the
+    quilted tile of the same frame does not, and its albedo is the old one's."""
+    rec = PhotoSurfaces()
+    old = rec.run({**BR, "images": [FRAME], "labels": TINY / "labels"},
+                  PhotoSurfacesParams(count=1, quilt=False, **FAST)).surfaces[0]
+    k = old.record["repeats"]
+    assert k >= 2                                            # this frame's clean window is smaller than 4 m
+    lag = FAST["size"] // k
+    meta = json.loads((real_materials / "materials.json").read_text())["materials"][0]
+    assert meta["window_m"] == pytest.approx(ST_TILE_M / k)
+    new = _luminance(cv2.imread(str(real_materials / meta["diffuse"])))
+    old_lum = old.tile[..., :3].astype(np.float64) @ [0.299, 0.587, 0.114]
+    for axis in (0, 1):
+        assert _shift_correlation(old_lum, lag, axis) > 0.99
+        assert _shift_correlation(new, lag, axis) < 0.5, (axis, meta["window_period_correlation"])
+    assert new.mean() == pytest.approx(old_lum.mean(), rel=0.05)
+
+
+def _exemplar(side: int, seed: int = 0) -> np.ndarray:
+    """Asphalt-like: fine grain, a few dark stains and a light streak, grey around 110."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    img = 110 + 14 * gaussian_filter(rng.normal(size=(side, side)), 1.2) / 0.23
+    yy, xx = np.mgrid[0:side, 0:side]
+    for cy, cx, r in rng.uniform([0, 0, 4], [side, side, 9], size=(6, 3)):
+        img -= 25 * np.exp(-((yy - cy) ** 2 + (xx - cx) ** 2) / (2 * r * r))
+    img += 12 * np.exp(-((yy - side * 0.3) ** 2) / 20.0)
+    return np.repeat(img[..., None], 3, axis=2)
+
+
+def test_quilting_removes_the_window_period():
+    """A 128-texel window tiled 2 x 2 correlates 1.0 at a lag of 128 (closed form: exact copies);
+    quilted into 256 texels from the same window, it correlates little there, wraps without a
+    seam and keeps the window's mean and contrast."""
+    window = _exemplar(144)
+    naive = np.tile(window[:128, :128], (2, 2, 1))[..., 0]
+    quilted = quilt_torus([window], 256, 32, np.random.default_rng(1))
+    assert quilted.shape == (256, 256, 3)
+    lum = quilted[..., 0].astype(np.float64)
+    for axis in (0, 1):
+        assert _shift_correlation(naive, 128, axis) > 0.999
+        assert abs(_shift_correlation(lum, 128, axis)) < 0.2
+        assert 0.6 < _seam_over_inside(lum, axis) < 1.5
+    assert lum.mean() == pytest.approx(window.mean(), rel=0.02)
+    assert lum.std() == pytest.approx(window.std(), rel=0.25)
+    assert np.array_equal(quilt_torus([window], 256, 32, np.random.default_rng(1)), quilted)
+
+
+def test_min_cut_is_the_least_path():
+    """Dynamic programming against every connected top-to-bottom path of a small error grid."""
+    import itertools
+
+    rng = np.random.default_rng(4)
+    error = rng.uniform(size=(6, 4))
+    best = min((sum(error[r, c] for r, c in enumerate(path)), path)
+               for path in itertools.product(range(4), repeat=6)
+               if all(abs(a - b) <= 1 for a, b in zip(path, path[1:])))
+    path = min_cut_path(error)
+    assert all(abs(a - b) <= 1 for a, b in zip(path, path[1:]))
+    assert error[np.arange(6), path].sum() == pytest.approx(best[0])
 
 
 def _painted_road(period_x: float, period_y: float) -> np.ndarray:
@@ -117,7 +187,7 @@ def test_back_projection_scale_and_orientation(tmp_path):
     img = save_pair(tmp_path, "painted", _painted_road(period_x, period_y), np.ones((H, W), np.uint8))
     rec = PhotoSurfaces()
     res = rec.run({**BR, "images": [img], "labels": tmp_path / "labels"},
-                  PhotoSurfacesParams(count=1, size=512, road_albedo=0.0))
+                  PhotoSurfacesParams(count=1, size=512, road_albedo=0.0, quilt=False))
     s = res.surfaces[0]
     lum = s.tile.astype(float).mean(axis=2)
     spectrum = np.abs(np.fft.rfft2(lum - lum.mean()))
