@@ -87,19 +87,22 @@ def write_defect_asset(model: DefectModel, path: str | Path, semantic_class: str
     return path
 
 
+def look_texture_files(model: DefectModel) -> dict[str, str]:
+    """Role -> file name under ``textures/`` beside the asset, where :func:`write_defect_asset`
+    copies a textured model's look (a composed town's decal materials point at these copies)."""
+    return {role: f"{model.name}_{role}{Path(src).suffix}" for role in LOOK_ROLES
+            if (src := model.look.textures.get(role))}
+
+
 def _write_look(stage: Usd.Stage, prim: Usd.Prim, model: DefectModel, folder: Path) -> None:
     """The asset's own texture: files copied to ``textures/<name>_<role>.png`` beside the asset and
     a ``UsdPreviewSurface`` (looks layer network, clamped, opacity from alpha) bound to it."""
-    files = {}
+    files = look_texture_files(model)
     (folder / "textures").mkdir(exist_ok=True)
-    for role in LOOK_ROLES:
-        src = model.look.textures.get(role)
-        if not src:
-            continue
-        dst = folder / "textures" / f"{model.name}_{role}{Path(src).suffix}"
+    for role, name in files.items():
+        src, dst = model.look.textures[role], folder / "textures" / name
         if not dst.exists() or not dst.samefile(src):
             shutil.copyfile(src, dst)
-        files[role] = dst.name
     if "diffuse" not in files:
         raise RoadtwinError(f"defect model {model.name!r}: its look has no diffuse texture")
     spec = MaterialSpec(LOOK_MATERIAL, files["diffuse"], files.get("roughness"), normal=files.get("normal"),

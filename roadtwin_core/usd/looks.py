@@ -12,8 +12,9 @@ Isaac Sim all read (so keep it exactly so)::
         Roughness       UsdUVTexture, raw                      (only with a roughness map)
         Normal          UsdUVTexture, raw, scale (2,2,2,1), bias (-1,-1,-1,0)  (only with a normal map)
 
-Texture paths are relative to this layer (``@../textures/<file>@``), so the output folder can
-move. Bindings are overs (``MaterialBindingAPI``) on prims other layers define. Driving and
+Texture paths are relative to this layer (``@../textures/<file>@``; a photo-made defect's decal
+reads the town's copy of its library asset, ``@../library/textures/<file>@``), so the output folder
+can move. Bindings are overs (``MaterialBindingAPI``) on prims other layers define. Driving and
 junction surfaces are bound only inside the ``roadMaterial`` variants: a direct opinion in this
 layer would be stronger than any variant (LIVRPS) and the switch would do nothing.
 """
@@ -106,9 +107,11 @@ def _bind(layer: Sdf.Layer, root: str, bindings: list[Binding], known: set[str],
 
 
 def write_looks(layer: Sdf.Layer, root: str, specs: dict[str, MaterialSpec], bindings: list[Binding],
-                variants: dict[str, list[Binding]], default_variant: str) -> None:
+                variants: dict[str, list[Binding]], default_variant: str,
+                texture_dirs: dict[str, str] | None = None) -> None:
     """Materials (sorted by name), direct bindings, then the ``roadMaterial`` variant set on the
-    root prim with its own bindings per variant (``default_variant`` selected).
+    root prim with its own bindings per variant (``default_variant`` selected). ``texture_dirs``:
+    material name -> its texture folder relative to ``layer``, where not ``TEXTURE_DIR``.
 
     The few materials go through the UsdShade API on a stage opened for them alone; the bindings
     (one per segment, defect piece and marking: tens of thousands) are authored at the Sdf level
@@ -116,7 +119,7 @@ def write_looks(layer: Sdf.Layer, root: str, specs: dict[str, MaterialSpec], bin
     stage = Usd.Stage.Open(layer)
     UsdGeom.Scope.Define(stage, f"{root}/Looks")
     for name in sorted(specs):
-        define_material(stage, root, specs[name])
+        define_material(stage, root, specs[name], (texture_dirs or {}).get(name, TEXTURE_DIR))
     del stage
     known = set(specs)
     with Sdf.ChangeBlock():

@@ -29,16 +29,15 @@ from dataclasses import dataclass, field
 from typing import Callable
 from pathlib import Path
 
-import shutil
-
 import numpy as np
 from pxr import Sdf, UsdGeom, UsdPhysics
 
+from ..errors import RoadtwinError
 from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_material, kind_material, marking_material
 from ..town.markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
 from ..town.props import Props
-from .library import defect_labels
+from .library import defect_labels, look_texture_files
 from .looks import write_looks
 from .props import write_props
 from .stage import (GEOMETRY_SUFFIX, author_api_over, author_attrs, author_labels, author_mesh_geometry, author_uniform,
@@ -82,22 +81,26 @@ def defect_st(p: Placement, vertices: np.ndarray) -> np.ndarray:
     return p.model.look.st(p.local_xy(np.asarray(vertices)[:, :2]))
 
 
-def decal_materials(outdir: Path, placements: list[Placement]) -> dict[str, MaterialSpec]:
-    """One clamped material per textured model placed, its textures copied into
-    ``outdir/textures`` (``decal_<model>_<role>.png``) so the town is self-contained."""
+def decal_materials(outdir: Path, placements: list[Placement],
+                    library_files: dict[str, str]) -> tuple[dict[str, MaterialSpec], dict[str, str]]:
+    """One clamped material per textured model placed, over the textures of the town's own copy
+    of its library asset (``library/textures/<model>_<role>.png``, :func:`look_texture_files`),
+    so the town stores each texture once. Returns the specs and each one's texture folder,
+    relative to ``layers/looks.usda`` (``../library/textures``: the town can still move)."""
     specs: dict[str, MaterialSpec] = {}
+    folders: dict[str, str] = {}
     models = {p.model.name: p.model for p in placements if p.model.look is not None}
     for name in sorted(models):
-        files = {}
-        for role, src in sorted(models[name].look.textures.items()):
-            dst = outdir / "textures" / f"decal_{name}_{role}{Path(src).suffix}"
-            dst.parent.mkdir(exist_ok=True)
-            shutil.copyfile(src, dst)
-            files[role] = dst.name
+        folder = (Path(library_files[name]).parent / "textures").as_posix()
+        files = look_texture_files(models[name])
+        for file in files.values():
+            if not (outdir / folder / file).is_file():
+                raise RoadtwinError(f"defect model {name!r}: texture {folder}/{file} is not in the town's library copy")
         specs[f"decal_{name}"] = MaterialSpec(f"decal_{name}", files["diffuse"], files.get("roughness"),
                                               normal=files.get("normal"), wrap="clamp",
                                               doc=f"defect {name}'s own texture (source: {models[name].source})")
-    return specs
+        folders[f"decal_{name}"] = f"../{folder}"
+    return specs, folders
 
 
 def segment_st(seg: RoadSegment, vertices: np.ndarray) -> np.ndarray:
@@ -256,8 +259,9 @@ def _write_looks_layer(outdir: Path, doc: str, parts: TownParts, pieces: _Pieces
         material = defect_material_name(p)
         bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
     bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
-    materials = {**parts.materials, **decal_materials(outdir, parts.placements)}
-    write_looks(looks, root, materials, bindings, road_variants(lay.segments, parts.road_textures), parts.road_material)
+    decals, decal_folders = decal_materials(outdir, parts.placements, parts.library_files)
+    write_looks(looks, root, {**parts.materials, **decals}, bindings, road_variants(lay.segments, parts.road_textures),
+                parts.road_material, decal_folders)
     looks.Save()
 
 
