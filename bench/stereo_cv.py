@@ -9,7 +9,9 @@ This is done for both road models (``--param``-free: SegmentParams.road_model): 
 model (default since issue 20: sigma = small-scale noise after a tiled robust correction,
 plugins/roadtwin_stereo/road_model.py) and the global quadratic (issue 14). Printed: per-frame
 held-out precision / recall / F1, the chosen parameters per fold, mean F1 and pixel-pooled F1,
-and the same with the shipped defaults.
+and the same with the shipped defaults. The detector's physical floor (StereoDefectsParams
+floor_depth_m / floor_area_m2, metres) does not apply here: these maps are transformed and
+normalised, without K or units.
 
     PYTHONPATH=.:plugins .venv/bin/python bench/stereo_cv.py [DATA_DIR]
 

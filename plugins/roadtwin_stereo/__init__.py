@@ -8,9 +8,12 @@ core-free (numpy / OpenCV / scipy / triangle / shapely) and can be used on their
 - :mod:`.subpixel` -- Lucas-Kanade refinement of SGBM's disparity along the rows (no pixel locking);
 - :mod:`.segment` -- defect pixels and instances from a transformed disparity map;
 - :mod:`.mesh` -- one instance -> 2.5D mesh in a local road frame (z = 0 on the road);
+- :mod:`.texture` -- each defect's footprint pixels from the left image, an orthographic patch in
+  its local XY (texture of a textured asset), and raw disparity back from a normalised transformed map;
 - :mod:`.synthetic` -- exact disparity of a known bowl pothole, for tests and benchmarks.
 
-Only :class:`StereoDefects` touches roadtwin_core (DefectModel, write_defect_asset, atomic output).
+Only this module touches roadtwin_core (:class:`StereoDefects` and its writer: DefectModel, DefectLook,
+write_defect_asset, atomic output).
 
 Inputs of ``reconstruct(inputs, params)`` (a dict): ``disparity`` (path to a disparity map, or an
 array) *or* ``left`` + ``right`` (rectified pair, paths or arrays); ``K`` (3x3, or fx, fy, cx, cy)
@@ -19,24 +22,31 @@ already transformed, as in ``../shared/data/stereo_pothole``: then only pixels a
 out, since a transformed, normalised map has lost the disparity units needed for 3D points);
 ``source`` (a string recorded on every model; default the input path); ``road_mask`` (optional,
 path or array, non-zero = road, e.g. a road segmentation's output: pixels off it are not modelled
-as road nor searched for defects).
+as road nor searched for defects); ``rgb`` (optional, path or array: the left colour image of a
+disparity map, its size; a pair's ``left`` serves otherwise): with it and ``params.texture`` (the
+default) :meth:`StereoDefects.write` gives every asset its footprint's pixels as a decal texture
+and a ``roadtwin:source`` naming the frame, the instance and ``license`` (default: the first line
+of a LICENSE file beside the image or up to three folders above).
 """
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from roadtwin_core import DefectModel, RoadtwinError, check_params, field, hookimpl
+from roadtwin_core import DefectLook, DefectModel, RoadtwinError, check_params, field, hookimpl
 from roadtwin_core.atomic import atomic_output_dir
 from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
 from .mesh import DefectInstance, reconstruct_instance
-from .segment import SegmentParams, f1_score, load_disparity, load_label, segment_defects
+from .road_model import metric_road_depth
+from .segment import (SegmentParams, f1_score, load_disparity, load_label, road_residual, segment_defects,
+                      segment_residual)
 from .subpixel import refine_disparity
+from .texture import TextureSource, make_patch, source_text, texture_source
 from .transform import RoadDisparityModel, fit_road_disparity, sgbm_disparity, transform_disparity
 
 __all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "RoadDisparityModel",
@@ -52,13 +62,43 @@ class StereoDefectsParams:
     grid_m: float = field(0.01, lo=1e-4, hi=1.0, doc="grid sampling step of the defect mesh (m)")
     disparity_scale: float = field(1.0, lo=1e-9, doc="integer disparity PNGs are divided by this (KITTI: 256)")
     max_disparity: int = field(128, lo=16, hi=1024, doc="SGBM disparity range (px)")
-    min_depth_m: float = field(0.0, lo=0.0, doc="drop reconstructed defects shallower than this (m)")
+    min_depth_m: float = field(0.0, lo=0.0, doc="after meshing: drop models whose mesh is shallower than this (m); "
+                               "the detector's own floor is floor_depth_m")
+    floor_depth_m: float = field(0.01, lo=0.0, hi=1.0, doc="physical floor of the detector (metric inputs: a raw "
+                                 "disparity or a pair, with K and baseline): a region is a defect only if it reaches "
+                                 "this far (m; 90th percentile of its pixels) below the local road model. Why: the "
+                                 "other thresholds are in units of the map's own noise, so a clean map lowers them "
+                                 "until benign road shape passes; metres do not move with the matcher. 1 cm: the "
+                                 "issue's depth tolerance (shallower is not a measured depth), under half the "
+                                 "shallowest pothole on bench/loop.py's tuning cases (docs/stereo_detector.md). "
+                                 "Not applied to transformed (normalised, unitless) maps; 0 = off")
+    floor_area_m2: float = field(0.0, lo=0.0, hi=100.0, doc="physical floor of the detector (metric inputs): a "
+                                 "region is a defect only if it covers this much road (m^2); 0 = off, the default. Why "
+                                 "metres: a pixel count is a different area at 3 m and at 10 m. Why off: on "
+                                 "bench/loop.py's tuning cases 0.02 m^2 (half their smallest pothole) removed only 7 "
+                                 "of 112 false regions, and an area scales with the square of the calibration's "
+                                 "scale (a nominal rig's real pothole fell under it; docs/stereo_detector.md)")
     subpixel_sigma_u_px: float = field(0.0, lo=0.0, hi=50.0, doc="left/right pairs: Gaussian window along the rows "
                                        "(px) of the Lucas-Kanade sub-pixel refinement of SGBM's disparity (0 = off, "
-                                       "the default: refined maps are accurate to ~0.06 px but the detector's noise-"
-                                       "relative thresholds then flag road shape too; bench/loop.py uses 6)")
+                                       "the default: refined maps are accurate to ~0.06 px on the road, but their local "
+                                       "0.2-0.5 px errors pass the detector as potholes, floor or not: "
+                                       "docs/stereo_detector.md; bench/loop.py uses 6)")
     subpixel_sigma_v_px: float = field(2.0, lo=0.1, hi=50.0, doc="the same window across the rows (px; narrow: a road "
                                        "far ahead is foreshortened along v)")
+    subpixel_reject_error: float = field(1.3, lo=0.0, hi=100.0, doc="sub-pixel refinement: a match whose predicted "
+                                         "standard error exceeds this x the frame's median is invalid (0 = keep all). "
+                                         "Why: where the views disagree the refinement lands 0.2-0.8 px off, in patches "
+                                         "the detector takes for potholes (subpixel.py; chosen on bench/loop.py's "
+                                         "tuning cases, docs/stereo_detector.md)")
+    subpixel_reject_residual: float = field(2.0, lo=0.0, hi=100.0, doc="sub-pixel refinement: a match whose residual "
+                                            "(grey levels a shift leaves unexplained) exceeds this x the frame's median "
+                                            "is invalid (0 = keep all); why: as subpixel_reject_error")
+    texture: bool = field(True, doc="textured assets: each defect wears the left image's pixels of its footprint "
+                          "(inputs 'rgb', else a pair's 'left'; texture.py), fading into the road at its outline")
+    texel_m: float = field(0.0, lo=0.0, hi=0.1, doc="texture patch resolution on the road (m per texel); 0: the "
+                           "image's own, one pixel at the defect's range (1-50 mm)")
+    road_albedo: float = field(0.12, lo=0.0, hi=1.0, doc="linear luminance the road around a defect is scaled to, "
+                               "so the patch is an albedo like the town's asphalt; 0 keeps the image's exposure")
 
 
 @dataclass
@@ -68,6 +108,7 @@ class StereoResult:
     transformed: np.ndarray            # transformed disparity
     road_model: RoadDisparityModel | None
     instances: list[DefectInstance]
+    texture: TextureSource | None = None   # the frame's left image + K when the assets are textured
 
 
 def _image(x: Any, what: str) -> tuple[np.ndarray, str]:
@@ -175,7 +216,9 @@ class StereoDefects:
                                     f"{right.shape[0]} px, left {lname} {left.shape[1]}x{left.shape[0]} px")
             disp = sgbm_disparity(left, right, p.max_disparity)
             if p.subpixel_sigma_u_px > 0:
-                disp = refine_disparity(left, right, disp, (p.subpixel_sigma_u_px, p.subpixel_sigma_v_px))
+                reject = (p.subpixel_reject_error or np.inf, p.subpixel_reject_residual or np.inf)
+                disp = refine_disparity(left, right, disp, (p.subpixel_sigma_u_px, p.subpixel_sigma_v_px),
+                                        reject=None if np.isinf(reject).all() else reject)
         else:
             raise RoadtwinError(f"{self.name}: give a disparity map or a rectified left + right pair")
         source = str(inputs.get("source") or source)
@@ -184,7 +227,8 @@ class StereoDefects:
         valid = np.isfinite(disp)
         if valid.mean() < 0.05:
             raise RoadtwinError(f"{source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")
-        seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, min_area_frac=p.min_area_frac)
+        seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, min_area_frac=p.min_area_frac,
+                            min_depth_m=p.floor_depth_m, min_area_m2=p.floor_area_m2)
         road = None
         if transformed_in:
             dt = disp
@@ -193,7 +237,11 @@ class StereoDefects:
                 dt, road = transform_disparity(disp)
             except ValueError as exc:
                 raise RoadtwinError(f"{source}: {exc}") from None
-        labels = segment_defects(dt, seg)
+        z, valid_z, sigma = road_residual(dt, seg, with_sigma=True)
+        metric = None
+        if not transformed_in and (p.floor_depth_m > 0 or p.floor_area_m2 > 0):  # units: px of a raw disparity
+            metric = metric_road_depth(z * sigma, disp, valid_z & (z > -p.k_grow), K, float(baseline))
+        labels = segment_residual(z, valid_z, seg, metric)
         models: list[DefectModel] = []
         instances: list[DefectInstance] = []
         if not transformed_in:
@@ -211,14 +259,27 @@ class StereoDefects:
                     continue
                 models.append(m)
                 instances.append(inst)
-        return StereoResult(models, labels, dt, road, instances)
+        return StereoResult(models, labels, dt, road, instances, self._texture(inputs, K, disp.shape, p, models))
 
     def reconstruct(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> list[DefectModel]:
+        """The models, untextured: a look needs texture files, which :meth:`write` makes."""
         return self.run(inputs, params).models
+
+    def _texture(self, inputs: dict[str, Any], K: np.ndarray | None, shape: tuple[int, int],
+                 p: StereoDefectsParams, models: list[DefectModel]) -> TextureSource | None:
+        """The frame's texture source when the assets are to be textured (``p.texture``, metric
+        models and a colour image: ``inputs["rgb"]``, else a pair's ``left``)."""
+        if not (p.texture and models):
+            return None
+        try:
+            return texture_source(inputs, K, shape, texel_m=p.texel_m, road_albedo=p.road_albedo)
+        except ValueError as exc:
+            raise RoadtwinError(str(exc)) from None
 
     def write(self, result: StereoResult, out: str | Path) -> list[Path]:
         """Write one library asset per model plus ``mask.png`` (defect pixels 255) and
-        ``instances.json`` into ``out`` (replaced atomically)."""
+        ``instances.json`` into ``out`` (replaced atomically). With ``result.texture`` each asset
+        wears its footprint's pixels (``textures/NAME_diffuse.png``, a bound UsdPreviewSurface)."""
         import cv2
 
         paths = []
@@ -229,12 +290,37 @@ class StereoDefects:
             meta = {"instances": int(result.labels.max()),
                     "roll_rad": None if result.road_model is None else result.road_model.theta,
                     "models": []}
-            for m in result.models:
+            for m, inst in zip(result.models, result.instances):
+                if result.texture is not None:
+                    m = _textured(m, inst, result.labels == m.params["instance"], result.texture, tmp / "textures")
                 write_defect_asset(m, tmp / f"{m.name}.usda")
                 paths.append(Path(out) / f"{m.name}.usda")
                 meta["models"].append({"name": m.name, **{k: v for k, v in m.attributes().items()}})
             (tmp / "instances.json").write_text(json.dumps(meta, indent=2))
         return paths
+
+
+def _textured(model: DefectModel, inst: DefectInstance, mask: np.ndarray, src: TextureSource,
+              tex_dir: Path) -> DefectModel:
+    """The model with its look (``tex_dir/NAME_diffuse.png``, st affine in local XY) and a
+    source naming the frame, the instance and the license; unchanged when no texel is seen."""
+    import cv2
+
+    patch = make_patch(src, inst, mask)
+    if patch is None:
+        return model
+    tex_dir.mkdir(exist_ok=True)
+    diffuse = tex_dir / f"{model.name}_diffuse.png"
+    if not cv2.imwrite(str(diffuse), cv2.cvtColor(patch.albedo, cv2.COLOR_RGBA2BGRA)):
+        raise RoadtwinError(f"{diffuse}: cannot write the texture")
+    look = DefectLook.fit({"diffuse": str(diffuse)}, model.vertices, patch.st)
+    if look is None:
+        raise RoadtwinError(f"{model.name}: the patch's st is not affine in local XY")
+    params = {**model.params, "texture": {"frame": src.frame, "license": src.license, "texel_m": patch.texel_m,
+                                          "footprint_area_m2": round(patch.area_m2, 6),
+                                          "road_albedo": src.road_albedo}}
+    return replace(model, look=look, params=params,
+                   source=source_text(src, model.source, int(model.params["instance"]), int(model.params["pixels"])))
 
 
 @hookimpl

@@ -26,6 +26,14 @@ is absorbed by measuring every threshold in units the frame itself supplies:
    of ``z`` over it) exceeds ``k_seed`` road sigmas -- a depth relative to this frame's noise,
    whatever the region's size (the earlier detector demanded a fixed seed *area* of 0.2 % of the
    image, which a small pothole on another road does not reach).
+5b. **A physical floor** (metric maps only: a raw disparity with K and baseline). Noise-relative
+   thresholds fall with the map's noise: on a clean map (sub-pixel matching) benign road shape
+   -- crown, camber, undulation the local model leaves, a few mm -- passes step 5. So a kept
+   region must also reach ``min_depth_m`` below the local road model (90th percentile of its
+   pixels' depth in metres, :func:`~.road_model.metric_road_depth`) and cover ``min_area_m2``
+   of road. A transformed, normalised map has lost its units: there the floor is not applied.
+   (On bench/loop.py's drives it removes few: their false detections are local 0.2-0.5 px
+   matching errors, metrically as deep as potholes; docs/stereo_detector.md.)
 6. **Where a pothole ends.** Each kept region is cut at ``max(k_grow, depth_frac x its own peak
    depth)``: a deep pothole's edge is set relative to that pothole, so a shallow sag of the road
    around it (seen as twice the labelled area on other roads) does not join it.
@@ -71,6 +79,8 @@ class SegmentParams:
     tile_frac: float = 0.0625    # local model: tile side as a fraction of the frame's shorter side
     model_iters: int = 3         # local model: rounds of masking candidates and refitting
     mask_k: float = 10.0         # local model: regions reaching this many sigmas are masked from the road fit
+    min_depth_m: float = 0.0     # physical floor (metric maps only): a kept region reaches this far below the road
+    min_area_m2: float = 0.0     # physical floor (metric maps only): a kept region covers this much road
 
 
 def load_disparity(path: str | Path, scale: float = 1.0) -> np.ndarray:
@@ -168,11 +178,12 @@ def fit_road_surface(d: np.ndarray, degree: int = 2, step: int = 4, iters: int =
     return out, np.isfinite(e) & (np.abs(e - med) < 3 * s)
 
 
-def road_residual(disp: np.ndarray, params: SegmentParams | None = None) -> tuple[np.ndarray, np.ndarray]:
+def road_residual(disp: np.ndarray, params: SegmentParams | None = None, with_sigma: bool = False):
     """(z, valid): the smoothed residual to the road model in units of the road's own noise
     sigma (road level = 0, potholes negative), and the mask of valid pixels. With
     ``road_model="local"`` (default) the global surface is corrected by the local robust model
-    of :mod:`.road_model` and sigma is the small-scale (high-pass) noise."""
+    of :mod:`.road_model` and sigma is the small-scale (high-pass) noise. ``with_sigma``: also
+    sigma itself (``z * sigma`` is the residual in the map's units, px for a raw disparity)."""
     import cv2
 
     p = params or SegmentParams()
@@ -182,7 +193,7 @@ def road_residual(disp: np.ndarray, params: SegmentParams | None = None) -> tupl
     d[~np.isfinite(d) | (d == 0)] = np.nan
     valid = np.isfinite(d)
     if valid.sum() < 100:
-        return np.zeros(d.shape), valid
+        return (np.zeros(d.shape), valid, 1.0) if with_sigma else (np.zeros(d.shape), valid)
     surface, road = fit_road_surface(d, p.surface_degree, return_inliers=True)
     e = np.where(valid, d - surface, 0.0)
     res0 = e
@@ -192,17 +203,22 @@ def road_residual(disp: np.ndarray, params: SegmentParams | None = None) -> tupl
         res0 = np.where(den > 0.2, num / np.maximum(den, 1e-9), 0.0)
     ref = res0[road] if road.sum() > 100 else res0[valid]
     med = float(np.median(ref))
-    z = np.where(valid, (res0 - med) / _robust_sigma(ref), 0.0)
-    if p.road_model == "quadratic":
-        return z, valid
-    z, _ = local_road_residual(e, valid, deep_regions(z, valid, p.k_grow, p.mask_k), k_grow=p.k_grow,
-                               k_peak=p.mask_k, tile_frac=p.tile_frac, blur_px=p.blur_px, iters=p.model_iters)
-    return z, valid
+    sigma = _robust_sigma(ref)
+    z = np.where(valid, (res0 - med) / sigma, 0.0)
+    if p.road_model == "local":
+        z, _, sigma = local_road_residual(e, valid, deep_regions(z, valid, p.k_grow, p.mask_k), k_grow=p.k_grow,
+                                          k_peak=p.mask_k, tile_frac=p.tile_frac, blur_px=p.blur_px,
+                                          iters=p.model_iters)
+    return (z, valid, sigma) if with_sigma else (z, valid)
 
 
-def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | None = None) -> np.ndarray:
+def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | None = None,
+                     metric: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Instance labels (int32, 0 = road) from :func:`road_residual`'s output (steps 4-8 of the
-    module docstring); split off so a parameter sweep reuses one surface fit."""
+    module docstring); split off so a parameter sweep reuses one surface fit. ``metric``:
+    (depth_m, area_m2) per pixel (:func:`~.road_model.metric_road_depth`), for the physical
+    floor (step 5b); without it (a transformed, normalised map has no metric scale) the floor
+    is not applied."""
     import cv2
 
     p = params or SegmentParams()
@@ -229,6 +245,8 @@ def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | N
     keep[0] = False
     if p.min_area_frac > 0:
         keep &= counts >= p.min_area_frac * z.size
+    if metric is not None and (p.min_depth_m > 0 or p.min_area_m2 > 0):
+        keep &= _physical_floor(lab, n, keep, metric, p)
     edge = np.maximum(p.k_grow, p.depth_frac * peak)
     region = keep[lab] & (z < -edge[lab])
     # step 7: invalid blobs mostly bordered by the region join it (not those on the image border)
@@ -250,6 +268,22 @@ def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | N
         region = cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_OPEN, ker).astype(bool)
     n, lab = cv2.connectedComponents(region.astype(np.uint8), connectivity=8)
     return lab.astype(np.int32)
+
+
+def _physical_floor(lab: np.ndarray, n: int, keep: np.ndarray, metric: tuple[np.ndarray, np.ndarray],
+                    p: SegmentParams) -> np.ndarray:
+    """Step 5b: per candidate region, its depth below the local road in metres (the 90th
+    percentile of the per-pixel depth: the same robust peak as step 5's 10th percentile of z)
+    reaches ``min_depth_m`` and the road it covers reaches ``min_area_m2``."""
+    depth, area = metric
+    ok = np.ones(n, bool)
+    for i in np.flatnonzero(keep):
+        px = lab == i
+        dm = depth[px]
+        dm = dm[np.isfinite(dm)]
+        ok[i] = (len(dm) > 0 and np.percentile(dm, 90) >= p.min_depth_m
+                 and float(np.nansum(area[px])) >= p.min_area_m2)
+    return ok
 
 
 def segment_defects(disp: np.ndarray, params: SegmentParams | None = None) -> np.ndarray:

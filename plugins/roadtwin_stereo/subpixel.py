@@ -15,6 +15,16 @@ offset ``b``, is ``-cov_W(g, r) / var_W(g)`` (the 2x2 normal equations, solved i
 ``g`` is the symmetric gradient ``(dI_L/dx + dw/dx) / 2`` (Nehab et al.'s symmetric form, which
 halves the linearisation bias). A few Gauss-Newton steps; SGBM's value is kept where the window
 has no texture or where the refinement leaves a +-``max_shift`` px band around SGBM.
+
+Trust (issue 20, item 5): the fit also says how good each match is. Its residual RMS
+``res = sqrt(var(r) - cov(g, r)^2 / var(g))`` (grey levels left unexplained by a shift) and its
+predicted standard error ``res / sqrt(var(g))`` (up to the window's constant pixel count). Where
+the two views disagree (view-dependent appearance, an edge the window straddles, low texture)
+the refinement lands 0.2-0.8 px off, in compact patches a pothole detector takes for dips (the
+loop's false detections, docs/stereo_detector.md). Pixels whose standard error exceeds
+``reject[0]`` x the frame's median, or whose residual exceeds ``reject[1]`` x its median, are
+returned invalid (NaN): the ratios are to the frame's own figures, so no grey-level or pixel
+constant enters. ``reject=None`` keeps every refined value.
 """
 from __future__ import annotations
 
@@ -46,12 +56,14 @@ def _weighted_mean(x: np.ndarray, w: np.ndarray, wsum: np.ndarray, sigma: tuple[
 
 def refine_disparity(left: np.ndarray, right: np.ndarray, disp: np.ndarray,
                      window_sigma: float | tuple[float, float] = (6.0, 2.0),
-                     iters: int = 5, max_shift: float = 1.0, min_texture: float = 1.0) -> np.ndarray:
+                     iters: int = 5, max_shift: float = 1.0, min_texture: float = 1.0,
+                     reject: tuple[float, float] | None = None) -> np.ndarray:
     """Refined float64 disparity (NaN where ``disp`` is NaN or <= 0). ``left``/``right`` are the
     rectified pair ``disp`` was computed on (gray or BGR, same size); ``window_sigma`` (px) is the
     Gaussian matching window, one number or (along u, along v): a road seen at a grazing angle is
     foreshortened along v, so a window narrower along v keeps more of a pothole's profile; ``min_texture`` the least RMS gradient (grey levels / px) in the
-    window for a refinement to be trusted."""
+    window for a refinement to be trusted; ``reject`` (standard-error ratio, residual ratio): the
+    matches returned invalid (module docstring)."""
     import cv2
 
     sigma = (float(window_sigma), float(window_sigma)) if np.isscalar(window_sigma) else tuple(map(float, window_sigma))
@@ -78,6 +90,7 @@ def refine_disparity(left: np.ndarray, right: np.ndarray, disp: np.ndarray,
         mg, mr = _weighted_mean(g, wt, wsum, sigma), _weighted_mean(r, wt, wsum, sigma)
         var_g = _weighted_mean(g * g, wt, wsum, sigma) - mg * mg
         cov = _weighted_mean(g * r, wt, wsum, sigma) - mg * mr
+        var_r = _weighted_mean(r * r, wt, wsum, sigma) - mr * mr
         textured = var_g > min_texture ** 2
         step = np.where(textured, -cov / np.maximum(var_g, 1e-12), 0.0)
         # the window's mean disparity plus the step: a per-pixel update would keep (and add up)
@@ -89,4 +102,9 @@ def refine_disparity(left: np.ndarray, right: np.ndarray, disp: np.ndarray,
     keep = ok & (np.abs(refined - d0) <= max_shift)
     out = np.where(keep, refined, d0)
     out[~valid] = np.nan
+    if reject is not None and keep.any():
+        res = np.sqrt(np.maximum(var_r - cov * cov / np.maximum(var_g, 1e-12), 0.0))
+        err = res / np.sqrt(np.maximum(var_g, 1e-12))
+        bad = (err > reject[0] * np.median(err[keep])) | (res > reject[1] * np.median(res[keep]))
+        out[keep & bad] = np.nan
     return out

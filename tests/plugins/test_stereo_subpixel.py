@@ -105,3 +105,22 @@ def test_refinement_on_the_loops_rig_far_potholes():
     for px, py, r, dd in pots:
         inner = m & _grazing_scene(((px, py, r / 2, dd),)).pothole_masks()[0]
         assert np.mean((plane - refined)[inner]) == pytest.approx(np.mean((plane - true)[inner]), abs=0.07)
+
+
+def test_reject_drops_matches_where_the_views_disagree(pair):
+    """A reflection of other texture seen by the right camera only (view-dependent appearance:
+    the two views disagree there) leaves a large fit residual; ``reject`` must return many of
+    those matches invalid and keep nearly all the others, as accurate as before."""
+    sc, left, right, _, m = pair
+    true = sc.disparity()
+    v, u = np.mgrid[0:right.shape[0], 0:right.shape[1]]
+    r = np.hypot(u - 200.0, v - 120.0)
+    w = 0.7 * np.clip((14 - r) / 3, 0, 1)
+    right2 = np.clip(right * (1 - w) + np.roll(left, 3, axis=1) * w, 0, 255).astype(np.uint8)
+    sgbm2 = rs.sgbm_disparity(left, right2, 48)
+    plain = rs.refine_disparity(left, right2, sgbm2)
+    kept = rs.refine_disparity(left, right2, sgbm2, reject=(1.5, 2.5))
+    near, far = m & np.isfinite(plain) & (r < 10), m & np.isfinite(plain) & (r > 30)
+    assert np.isnan(kept[near]).mean() > 0.25          # the disagreeing matches: many rejected
+    assert np.isnan(kept[far]).mean() < 0.03           # the rest kept
+    assert np.nanmedian(np.abs(kept - true)[far]) <= 1.01 * np.median(np.abs(plain - true)[far])
