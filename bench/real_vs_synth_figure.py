@@ -3,6 +3,7 @@ writes ``docs/realism/real_vs_synthetic.jpg``.
 
     .venv/bin/python bench/real_vs_synth_figure.py                     # compose + render a small set (CPU, ~3 min)
     .venv/bin/python bench/real_vs_synth_figure.py --render /tmp/zs/render   # frames already rendered
+    .venv/bin/python bench/real_vs_synth_figure.py --photos-every 30   # the figure in docs/realism (20 photos, ~1 min)
 
 Real: ``road_defects_br/val`` (512x320, a DNIT survey camera; val is only looked at here, nothing
 is fitted on it). Synthetic: a ``roadtwin render`` output folder, or, when none is given, the

@@ -18,10 +18,12 @@ numpy, OpenCV, scipy, shapely, triangle).
    ``depression``: the same with half the depth and no ravelling. Every other type (crack,
    patch, ...) stays flush (z = 0); its relief lives in the normal map.
 4. **Textures** (top view, travel upwards): albedo RGBA (alpha 1 on the label, falling linearly
-   to 0 across the fade band), roughness (asphalt base, rougher where the photo has more local
-   contrast, plus ``roughness_defect`` inside the label), normal (a height field from the
-   photo's high-pass luminance, darker = lower, strengthened inside crack labels so the dark
-   strokes read as grooves; tangent space with s to the right and t up the texture).
+   to 0 across the fade band; the colour itself fades there too, from the photo to the median
+   road colour around the label, with paint dimmed: ``fade_into_road``), roughness (asphalt
+   base, rougher where the photo has more local contrast, plus ``roughness_defect`` inside the
+   label), normal (a height field from the photo's high-pass luminance, darker = lower,
+   strengthened inside crack labels so the dark strokes read as grooves; tangent space with s
+   to the right and t up the texture).
 """
 from __future__ import annotations
 
@@ -109,6 +111,32 @@ def to_road_albedo(colour: np.ndarray, ring: np.ndarray, target: float) -> np.nd
     lum = lin @ np.array([0.2126, 0.7152, 0.0722])
     ref = float(np.median(lum[ring] if ring.any() else lum))
     lin = np.clip(lin * (target / max(ref, 1e-4)), 0.0, 1.0)
+    c = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin ** (1 / 2.4) - 0.055)
+    return (c * 255 + 0.5).astype(np.uint8)
+
+
+def fade_into_road(colour: np.ndarray, foot: np.ndarray, alpha: np.ndarray, ring: np.ndarray,
+                   bright_max: float = 1.5) -> np.ndarray:
+    """The fade band baked into the colour: outside the label each texel goes, in linear light,
+    from the photo (alpha 1) to the median colour of the road ring (alpha 0). A renderer draws
+    the decal opaque (its mesh replaces the road surface, there is nothing under it to blend
+    with), so without this the band shows whatever the photo had beside the label: lane paint
+    right next to a pothole became a white rim in the town. Before the blend, band texels
+    brighter than ``bright_max`` x the ring's median luminance are dimmed to it (paint, glare;
+    dark texels stay: a hole's dark edge often spills past a hand-drawn label)."""
+    c = colour.astype(np.float64) / 255.0
+    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    lum = lin @ np.array([0.2126, 0.7152, 0.0722])
+    sel = ring if ring.any() else ~foot
+    if not sel.any():
+        return colour
+    road = np.median(lin[sel], axis=0)
+    cap = bright_max * float(road @ np.array([0.2126, 0.7152, 0.0722]))
+    band = ~foot
+    dim = np.where(band & (lum > cap), cap / np.maximum(lum, 1e-9), 1.0)
+    lin = lin * dim[..., None]
+    a = np.where(band, alpha, 1.0)[..., None]
+    lin = np.clip(a * lin + (1.0 - a) * road, 0.0, 1.0)
     c = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin ** (1 / 2.4) - 0.055)
     return (c * 255 + 0.5).astype(np.uint8)
 
@@ -228,8 +256,10 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     verts3 = np.column_stack([verts - centroid, z])
 
     # textures
+    ring = ~foot & (outside <= fade + 3 * t)
     if p.road_albedo > 0:
-        colour = to_road_albedo(colour, ~foot & (outside <= fade + 3 * t), p.road_albedo)
+        colour = to_road_albedo(colour, ring, p.road_albedo)
+    colour = fade_into_road(colour, foot, alpha, ring)
     lum = cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
     sigma = max(1.0, 0.02 / t)
     high = lum - cv2.GaussianBlur(lum, (0, 0), sigma)
