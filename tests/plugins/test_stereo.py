@@ -6,8 +6,6 @@ depend on the entry point being installed.
 """
 from __future__ import annotations
 
-import importlib
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,12 +17,8 @@ from roadtwin_core.plugins import PluginManager
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(__file__).parents[1] / "data" / "stereo_pothole"
 
-try:
-    rs = importlib.import_module("roadtwin_stereo")
-except ImportError:  # editable install made before the plugin existed
-    sys.path.insert(0, str(ROOT / "plugins"))
-    rs = importlib.import_module("roadtwin_stereo")
-from roadtwin_stereo.synthetic import BowlScene, hausdorff_to_bowl, mesh_samples  # noqa: E402
+import roadtwin_stereo as rs
+from roadtwin_stereo.synthetic import BowlScene, hausdorff_to_bowl, mesh_samples
 
 # The detector's label-chosen numbers are chosen by leave-one-out over the 13 frames
 # (bench/stereo_cv.py, docs/stereo_detector.md): with the local road model (issue 20) the folds
@@ -34,18 +28,15 @@ from roadtwin_stereo.synthetic import BowlScene, hausdorff_to_bowl, mesh_samples
 F1_FLOOR_FRAME = 0.80
 F1_FLOOR_MEAN = 0.85
 
-
 @pytest.fixture(scope="module")
 def stereo():
     pm = PluginManager(load_entry_points=False)
     pm.register(rs, name="stereo")
     return pm.get("reconstructors", "stereo_defects")
 
-
 def test_registered(stereo):
     assert stereo.name == "stereo_defects" and stereo.produces == "defects"
     assert stereo.description
-
 
 def test_real_frames_f1(stereo):
     assert (DATA / "LICENSE").exists()
@@ -59,9 +50,7 @@ def test_real_frames_f1(stereo):
     assert min(scores) >= F1_FLOOR_FRAME
     assert np.mean(scores) >= F1_FLOOR_MEAN
 
-
 SHARED = ROOT.parent / "shared" / "data" / "stereo_pothole"
-
 
 @pytest.mark.slow
 @pytest.mark.skipif(not (SHARED / "disp_tg" / "13.png").exists(), reason="the 13 frames live in ../shared/data")
@@ -75,7 +64,6 @@ def test_all_13_real_frames_f1(stereo):
     print("F1 per frame", np.round(scores, 3), "mean", round(float(np.mean(scores)), 3))
     assert np.mean(scores) >= 0.9
     assert min(scores) >= F1_FLOOR_FRAME
-
 
 def test_disparity_transformation_roll_and_flatness():
     sc = BowlScene(tilt_deg=45, roll_deg=5.0, distance=3.0, offset=(0.3, 0.2), width=480, height=360, f=520.0)
@@ -95,13 +83,11 @@ def test_disparity_transformation_roll_and_flatness():
     lab = rs.segment_defects(dt)
     assert lab.max() == 1
 
-
 @pytest.fixture(scope="module")
 def bowl_result(stereo):
     sc = BowlScene(tilt_deg=30, roll_deg=2.0, distance=1.5, depth=0.05, radius=0.25, offset=(0.05, -0.03))
     return sc, stereo.run({"disparity": sc.disparity(0.1, seed=2), "K": sc.K, "baseline": sc.baseline,
                            "source": "synthetic/left_0001.png"})
-
 
 def test_bowl_volume_and_hausdorff(bowl_result):
     sc, r = bowl_result
@@ -116,7 +102,6 @@ def test_bowl_volume_and_hausdorff(bowl_result):
     assert np.all(m.vertices[m.boundary, 2] == 0) and m.pseudo_height[m.boundary].all()
     assert m.source == "synthetic/left_0001.png"
 
-
 def test_sgbm_pair_end_to_end(stereo):
     """Rendered textured pair -> OpenCV SGBM -> transformation -> mesh. Measured: volume error
     -2.0 %, Hausdorff 12 mm (SGBM's spatially correlated errors; the 1 cm target is met on exact
@@ -129,7 +114,6 @@ def test_sgbm_pair_end_to_end(stereo):
     hd, _ = hausdorff_to_bowl(sc, inst.to_camera(mesh_samples(m.vertices, m.faces)))
     assert abs(m.volume_m3 - sc.volume) / sc.volume <= 0.10
     assert hd <= 0.015
-
 
 def test_write_assets_and_mask(stereo, bowl_result, tmp_path):
     import cv2
@@ -144,7 +128,6 @@ def test_write_assets_and_mask(stereo, bowl_result, tmp_path):
     back = read_defect_asset(paths[0])
     assert back.volume_m3 == pytest.approx(r.models[0].volume_m3, rel=1e-6)
     assert back.source == "synthetic/left_0001.png"
-
 
 def test_bad_input(stereo, tmp_path):
     sc = BowlScene(width=160, height=120, f=175.0)
@@ -161,7 +144,6 @@ def test_bad_input(stereo, tmp_path):
     with pytest.raises(RoadtwinError, match="no such"):
         stereo.run({"disparity": tmp_path / "missing.png", "transformed": True})
     assert not any(tmp_path.iterdir())
-
 
 def test_cli_reconstruct_defects(monkeypatch, tmp_path):
     from typer.testing import CliRunner
@@ -180,7 +162,6 @@ def test_cli_reconstruct_defects(monkeypatch, tmp_path):
                                    "--transformed", "-o", str(out)])
     assert res.exit_code == 0, res.output
     assert (out / "mask.png").exists() and (out / "instances.json").exists()
-
 
 def test_bad_input_files_one_line_nothing_written(monkeypatch, tmp_path):
     """Bad stereo input through ``roadtwin reconstruct defects``: one RoadtwinError line naming the
@@ -241,7 +222,6 @@ def test_bad_input_files_one_line_nothing_written(monkeypatch, tmp_path):
     assert {p.name: p.read_bytes() for p in earlier.iterdir()} == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["earlier", "in"]  # no temporary folders left
 
-
 def _true_pothole_mask(sc: BowlScene) -> np.ndarray:
     """Closed form: the pixels whose ray meets the road inside the bowl's rim (r < R)."""
     v, u = np.mgrid[0:sc.height, 0:sc.width].astype(float)
@@ -249,7 +229,6 @@ def _true_pothole_mask(sc: BowlScene) -> np.ndarray:
     ray = np.stack([(u - sc.K[0, 2]) / sc.f, (v - sc.K[1, 2]) / sc.f, np.ones_like(u)], -1) * z[..., None]
     loc = sc.to_local(ray.reshape(-1, 3)).reshape(ray.shape)
     return loc[..., 0] ** 2 + loc[..., 1] ** 2 < sc.radius ** 2
-
 
 # What changes between roads and days: roll, pitch (tilt), noise, disparity range (baseline),
 # pothole size from 0.5 % to ~40 % of the frame. The previous detector (fixed seed area, sigma over
@@ -261,7 +240,6 @@ SYNTHETIC_ROADS = {
     "short_baseline": dict(tilt_deg=40, roll_deg=3.0, radius=0.2, depth=0.04, baseline=0.03, noise=0.02),
     "long_baseline_rolled": dict(tilt_deg=25, roll_deg=-8.0, radius=0.2, depth=0.04, baseline=0.5, noise=0.1),
 }
-
 
 @pytest.mark.parametrize("name", sorted(SYNTHETIC_ROADS))
 def test_synthetic_potholes_found_at_true_size(name):
@@ -277,7 +255,6 @@ def test_synthetic_potholes_found_at_true_size(name):
     assert lab.max() == 1  # one pothole, no false regions
     assert f1 >= 0.85
     assert 0.8 <= pred.sum() / truth.sum() <= 1.25  # neither missed nor grown into the road
-
 
 def test_segmentation_ignores_affine_rescaling():
     """Fan et al.'s maps are min-max normalised per frame: any positive gain and offset of the

@@ -9,26 +9,16 @@ and a 4 mm undulation, exact disparity by ray-surface intersection plus 0.005 px
 """
 from __future__ import annotations
 
-import importlib
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-try:
-    rs = importlib.import_module("roadtwin_stereo")
-except ImportError:  # editable install made before the plugin existed
-    sys.path.insert(0, str(ROOT / "plugins"))
-    rs = importlib.import_module("roadtwin_stereo")
-from roadtwin_stereo.road_model import metric_road_depth  # noqa: E402
-from roadtwin_stereo.segment import road_residual  # noqa: E402
-from roadtwin_stereo.synthetic import RoadScene  # noqa: E402
+import roadtwin_stereo as rs
+from roadtwin_stereo.road_model import metric_road_depth
+from roadtwin_stereo.segment import road_residual
+from roadtwin_stereo.synthetic import RoadScene
 
 POTHOLE = (0.35, -0.2, 0.2, 0.04)   # x, y, R, depth (m)
 SAG = (-0.4, 1.0, 0.35, 0.006)      # a wide, shallow dip of the road: not a defect
-
 
 @pytest.fixture(scope="module")
 def scene():
@@ -36,11 +26,9 @@ def scene():
                    cross_slope=0.02, waves=((0.004, 3.0, 0.3),), potholes=(POTHOLE, SAG))
     return sc, sc.disparity(0.005, seed=1), sc.pothole_masks()
 
-
 def _run(sc, disp, **params):
     rec = rs.StereoDefects()
     return rec.run({"disparity": disp, "K": sc.K, "baseline": sc.baseline}, rec.Params(grid_m=0.02, **params))
-
 
 def test_metric_depth_and_area_closed_form(scene):
     """The camera height from the road's disparity plane, the depth of a paraboloid (its 90th
@@ -53,14 +41,12 @@ def test_metric_depth_and_area_closed_form(scene):
     assert np.nansum(area[pothole]) == pytest.approx(np.pi * POTHOLE[2] ** 2, rel=0.05)
     assert abs(np.median(depth[valid & ~pothole])) < 0.001  # the road is at depth 0
 
-
 def test_without_floor_the_sag_passes(scene):
     """The clean map's noise unit is tiny: the sag reaches the noise-relative thresholds (what the
     loop showed as false detections on clean maps); this is what the floor is for."""
     sc, disp, (_, sag) = scene
     res = _run(sc, disp, floor_depth_m=0.0, floor_area_m2=0.0)
     assert (res.labels[sag] > 0).mean() >= 0.5
-
 
 def test_floor_drops_the_sag_keeps_the_pothole(scene):
     sc, disp, (pothole, sag) = scene
@@ -71,7 +57,6 @@ def test_floor_drops_the_sag_keeps_the_pothole(scene):
     assert (res.labels[pothole] > 0).mean() >= 0.9
     on = [m for m in res.models if (res.labels == m.params["instance"])[pothole].any()]
     assert len(on) == 1 and abs(on[0].depth_m - POTHOLE[3]) <= 0.005
-
 
 def test_floor_not_applied_to_transformed_maps(scene):
     """A transformed (normalised) map has no metric scale: the floor cannot apply, and the

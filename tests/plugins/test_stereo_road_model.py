@@ -11,25 +11,15 @@ size and nothing else.
 """
 from __future__ import annotations
 
-import importlib
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-try:
-    rs = importlib.import_module("roadtwin_stereo")
-except ImportError:  # editable install made before the plugin existed
-    sys.path.insert(0, str(ROOT / "plugins"))
-    rs = importlib.import_module("roadtwin_stereo")
-from roadtwin_stereo.road_model import row_levels, tile_background  # noqa: E402
-from roadtwin_stereo.segment import SegmentParams, segment_defects  # noqa: E402
-from roadtwin_stereo.synthetic import RoadScene  # noqa: E402
+import roadtwin_stereo as rs
+from roadtwin_stereo.road_model import row_levels, tile_background
+from roadtwin_stereo.segment import SegmentParams, segment_defects
+from roadtwin_stereo.synthetic import RoadScene
 
 POTHOLES = ((-0.6, -0.6, 0.2, 0.04), (0.7, 0.3, 0.25, 0.05), (-0.2, 1.6, 0.3, 0.06), (0.9, 3.2, 0.3, 0.05))
-
 
 @pytest.fixture(scope="module")
 def undulating():
@@ -37,7 +27,6 @@ def undulating():
                    cross_slope=0.025, crown=0.02, crown_x=0.8, potholes=POTHOLES)
     dt, _ = rs.transform_disparity(sc.disparity(0.05, seed=1))
     return sc.pothole_masks(), dt
-
 
 def _per_pothole(labels: np.ndarray, masks: list[np.ndarray]) -> tuple[list[float], list[float], int]:
     """Share of each pothole's true pixels detected, detected area of the instances on it over
@@ -49,7 +38,6 @@ def _per_pothole(labels: np.ndarray, masks: list[np.ndarray]) -> tuple[list[floa
     false = sum(1 for i in range(1, int(labels.max()) + 1) if truth[labels == i].mean() < 0.5)
     return recall, area, false
 
-
 def test_undulating_road_every_pothole_found_at_true_size(undulating):
     masks, dt = undulating
     recall, area, false = _per_pothole(segment_defects(dt), masks)
@@ -58,14 +46,12 @@ def test_undulating_road_every_pothole_found_at_true_size(undulating):
     assert all(0.5 <= a <= 1.5 for a in area)       # footprint within a factor 1.5 of the truth
     assert false == 0
 
-
 def test_global_quadratic_misses_them(undulating):
     """What the issue reports, reproduced: the quadratic's noise unit is inflated by the
     undulation, so the same thresholds find (almost) nothing."""
     masks, dt = undulating
     recall, _, _ = _per_pothole(segment_defects(dt, SegmentParams(road_model="quadratic")), masks)
     assert sum(r >= 0.5 for r in recall) <= 1
-
 
 def test_tile_background_recovers_a_smooth_road_under_a_masked_hole():
     """Closed form: a tilted, gently curved field plus a bowl 30 px wide; with the bowl masked
@@ -79,7 +65,6 @@ def test_tile_background_recovers_a_smooth_road_under_a_masked_hole():
     err = np.abs(bg - field)
     assert err[bowl].max() < 0.05 * np.ptp(field)
     assert np.percentile(err, 99) < 0.05 * np.ptp(field)
-
 
 def test_row_levels_remove_stripes_not_a_pothole():
     """Constant-along-row stripes (SGBM pixel locking) are taken out; a pothole covering a

@@ -8,23 +8,13 @@ keep the pothole's dip.
 """
 from __future__ import annotations
 
-import importlib
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-try:
-    rs = importlib.import_module("roadtwin_stereo")
-except ImportError:  # editable install made before the plugin existed
-    sys.path.insert(0, str(ROOT / "plugins"))
-    rs = importlib.import_module("roadtwin_stereo")
-from roadtwin_stereo.synthetic import BowlScene  # noqa: E402
+import roadtwin_stereo as rs
+from roadtwin_stereo.synthetic import BowlScene
 
 SCENE = dict(f=400.0, width=320, height=240, tilt_deg=30.0, distance=2.0, radius=0.3)
-
 
 @pytest.fixture(scope="module")
 def pair():
@@ -34,7 +24,6 @@ def pair():
     inner = np.zeros(sgbm.shape, bool)
     inner[8:-8, 56:-8] = True  # away from the left band SGBM cannot match and the borders
     return sc, left, right, sgbm, inner & np.isfinite(sgbm)
-
 
 def test_refinement_removes_pixel_locking(pair):
     sc, left, right, sgbm, m = pair
@@ -50,7 +39,6 @@ def test_refinement_removes_pixel_locking(pair):
     assert np.mean(frac(sgbm) < 0.125) > 0.45
     assert abs(np.mean(frac(refined) < 0.125) - np.mean(frac(true) < 0.125)) < 0.1
 
-
 def test_refinement_keeps_the_pothole_dip(pair):
     sc, left, right, sgbm, m = pair
     plane = BowlScene(depth=0.0, **SCENE).disparity()
@@ -60,7 +48,6 @@ def test_refinement_keeps_the_pothole_dip(pair):
     assert bowl.sum() > 1000
     assert np.mean(refined_dip[bowl]) == pytest.approx(np.mean(true_dip[bowl]), rel=0.15)
     assert np.median(np.abs(refined_dip - true_dip)[bowl]) < 0.5 * np.median(np.abs(plane - sgbm - true_dip)[bowl])
-
 
 def test_refinement_keeps_invalid_pixels_and_checks_sizes(pair):
     _, left, right, sgbm, _ = pair
@@ -72,7 +59,6 @@ def test_refinement_keeps_invalid_pixels_and_checks_sizes(pair):
     with pytest.raises(ValueError, match="differ in size"):
         rs.refine_disparity(left, right[:-1], sgbm)
 
-
 def _grazing_scene(potholes):
     """The loop's rig seen in closed form: 0.95 m up, pitched 12 deg down, f = 763 px (80 deg
     over 1280 px), 12 cm baseline; the 473 rows that see the road within ~15 m (principal point
@@ -83,7 +69,6 @@ def _grazing_scene(potholes):
                    distance=0.95 / np.cos(np.radians(78.0)), cross_slope=0.0, waves=(), potholes=potholes)
     sc.K[1, 2] = 112.5
     return sc
-
 
 @pytest.mark.slow
 def test_refinement_on_the_loops_rig_far_potholes():
@@ -105,7 +90,6 @@ def test_refinement_on_the_loops_rig_far_potholes():
     for px, py, r, dd in pots:
         inner = m & _grazing_scene(((px, py, r / 2, dd),)).pothole_masks()[0]
         assert np.mean((plane - refined)[inner]) == pytest.approx(np.mean((plane - true)[inner]), abs=0.07)
-
 
 def test_reject_drops_matches_where_the_views_disagree(pair):
     """A reflection of other texture seen by the right camera only (view-dependent appearance:

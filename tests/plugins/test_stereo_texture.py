@@ -12,8 +12,6 @@ with their measured depth, textured).
 """
 from __future__ import annotations
 
-import importlib
-import sys
 from pathlib import Path
 
 import cv2
@@ -28,13 +26,9 @@ from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
 
 ROOT = Path(__file__).resolve().parents[2]
-try:
-    rs = importlib.import_module("roadtwin_stereo")
-except ImportError:  # editable install made before the plugin existed
-    sys.path.insert(0, str(ROOT / "plugins"))
-    rs = importlib.import_module("roadtwin_stereo")
-from roadtwin_stereo.synthetic import BowlScene  # noqa: E402
-from roadtwin_stereo.texture import disparity_from_transformed, license_for  # noqa: E402
+import roadtwin_stereo as rs
+from roadtwin_stereo.synthetic import BowlScene
+from roadtwin_stereo.texture import disparity_from_transformed, license_for
 
 SHARED = ROOT.parent / "shared" / "data" / "stereo_pothole"
 DISC_R = 0.12            # the dark disc painted in the bowl (m)
@@ -43,17 +37,14 @@ DISC_R = 0.12            # the dark disc painted in the bowl (m)
 # (nominal: the normalised maps lost the true scale; this puts the potholes 3-7 cm deep).
 NOMINAL = {"hfov_deg": 90.0, "baseline": 0.12, "height_m": 1.0, "pitch_down_deg": 60.0, "units_per_px": 10000.0}
 
-
 def paint(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """sRGB colour (0-1) painted on the road and into the bowl at in-plane (x, y) metres."""
     c = np.stack([0.6 + 0.3 * np.sin(2 * np.pi * x / 0.12), 0.6 + 0.3 * np.cos(2 * np.pi * y / 0.09),
                   0.6 + 0.2 * np.sin(2 * np.pi * (x + y) / 0.2)], axis=-1)
     return np.where((x * x + y * y < DISC_R ** 2)[..., None], 0.15 * c, c)
 
-
 def linear(srgb: np.ndarray) -> np.ndarray:
     return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
-
 
 def painted_left_image(sc: BowlScene) -> np.ndarray:
     z = sc.depth_map()
@@ -61,7 +52,6 @@ def painted_left_image(sc: BowlScene) -> np.ndarray:
     cam = np.stack([(u - sc.K[0, 2]) / sc.f * z, (v - sc.K[1, 2]) / sc.f * z, z], -1).reshape(-1, 3)
     loc = sc.to_local(cam)
     return (paint(loc[:, 0], loc[:, 1]) * 255 + 0.5).astype(np.uint8).reshape(sc.height, sc.width, 3)
-
 
 @pytest.fixture(scope="module")
 def bowl(tmp_path_factory):
@@ -73,12 +63,10 @@ def bowl(tmp_path_factory):
     paths = st.write(r, tmp_path_factory.mktemp("bowl") / "lib")
     return sc, r, paths
 
-
 def texture(model) -> tuple[np.ndarray, float]:
     """The look's RGBA texture and its texel size (m, from the affine st map)."""
     img = cv2.cvtColor(cv2.imread(model.look.textures["diffuse"], cv2.IMREAD_UNCHANGED), cv2.COLOR_BGRA2RGBA)
     return img, 1.0 / (model.look.st_from_local[0][0] * img.shape[1])
-
 
 def test_texture_reproduces_the_painted_road(bowl):
     sc, r, paths = bowl
@@ -102,7 +90,6 @@ def test_texture_reproduces_the_painted_road(bowl):
     print(f"texture vs paint: correlation {corr:.3f} (stripes alone {corr_stripes:.3f})")
     assert corr >= 0.9 and corr_stripes >= 0.9
 
-
 def test_dark_disc_keeps_its_area_in_the_texture(bowl):
     """The texture is orthographic in metres: the painted disc's texels add up to pi r^2."""
     _, _, paths = bowl
@@ -115,7 +102,6 @@ def test_dark_disc_keeps_its_area_in_the_texture(bowl):
     area = float(((scaled <= thr) & core).sum()) * texel * texel
     print(f"disc area in the texture {area * 1e4:.1f} cm2, painted {np.pi * DISC_R ** 2 * 1e4:.1f} cm2")
     assert area == pytest.approx(np.pi * DISC_R ** 2, rel=0.03)
-
 
 def test_texture_is_an_albedo_that_fades_into_the_road(bowl):
     """The road band around the pothole has the town asphalt's luminance (road_albedo 0.12) and
@@ -132,7 +118,6 @@ def test_texture_is_an_albedo_that_fades_into_the_road(bowl):
                                  order=1)
     assert np.median(edge_alpha) < 40
     assert "license: CC0" in model.source and "synthetic/disp_0001.png" in model.source
-
 
 def real_frame(tmp: Path, name: str = "01", half: int = 300) -> tuple[object, list[Path]]:
     """A crop around frame ``name``'s labelled pothole (K's centre moved with it), through the
@@ -157,7 +142,6 @@ def real_frame(tmp: Path, name: str = "01", half: int = 300) -> tuple[object, li
                 "source": str(SHARED / "rgb" / f"{name}.jpg"), "license": license_for(SHARED / "rgb" / f"{name}.jpg")})
     return r, st.write(r, tmp)
 
-
 def test_real_frame_asset_validates_and_names_frame_and_license(tmp_path):
     r, paths = real_frame(tmp_path / "lib")
     assert len(paths) == 1
@@ -170,7 +154,6 @@ def test_real_frame_asset_validates_and_names_frame_and_license(tmp_path):
     stage = Usd.Stage.Open(str(paths[0]))
     mat = UsdShade.MaterialBindingAPI(stage.GetDefaultPrim()).ComputeBoundMaterial()[0]
     assert mat and mat.GetPrim().GetName() == "Surface"
-
 
 def test_real_frame_asset_composes_with_its_decal_bound(tmp_path):
     _, paths = real_frame(tmp_path / "lib")
@@ -195,7 +178,6 @@ def test_real_frame_asset_composes_with_its_decal_bound(tmp_path):
             town_png = Path(diffuse.GetAttribute("inputs:file").Get().resolvedPath)
             assert town_png.read_bytes() == (lib / "textures" / f"{paths[0].stem}_diffuse.png").read_bytes()
 
-
 def test_same_inputs_same_bytes(tmp_path):
     real_frame(tmp_path / "a", half=200)
     real_frame(tmp_path / "b", half=200)
@@ -203,7 +185,6 @@ def test_same_inputs_same_bytes(tmp_path):
     assert any(f.parent.name == "textures" for f in files)
     for f in files:
         assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes(), f
-
 
 def test_texture_off_keeps_the_untextured_asset(bowl, tmp_path):
     sc, _, _ = bowl
@@ -214,7 +195,6 @@ def test_texture_off_keeps_the_untextured_asset(bowl, tmp_path):
     paths = st.write(r, tmp_path / "lib")
     assert read_defect_asset(paths[0]).look is None and not (tmp_path / "lib" / "textures").exists()
 
-
 def test_colour_image_of_another_size_is_one_clear_error(bowl):
     from roadtwin_core import RoadtwinError
 
@@ -222,7 +202,6 @@ def test_colour_image_of_another_size_is_one_clear_error(bowl):
     with pytest.raises(RoadtwinError, match="colour image is 10x10 px"):
         rs.StereoDefects().run({"disparity": sc.disparity(0.1, seed=2), "K": sc.K, "baseline": sc.baseline,
                                 "rgb": np.zeros((10, 10, 3), np.uint8)})
-
 
 def test_cli_pair_writes_textured_assets(tmp_path):
     """``roadtwin reconstruct defects --left --right``: the pair's left image is the texture."""
@@ -242,7 +221,6 @@ def test_cli_pair_writes_textured_assets(tmp_path):
     assets = sorted(p for p in (tmp_path / "out").glob("*.usda") if not p.name.endswith(".geom.usda"))
     assert assets and all(read_defect_asset(p).look is not None for p in assets)
     assert all(f"stereo frame {tmp_path / 'left.png'}" in read_defect_asset(p).source for p in assets)
-
 
 @pytest.mark.slow
 def test_real_frame_asset_in_the_sample_town(tmp_path):
