@@ -4,8 +4,8 @@ What it places (``DEFAULT_RULES``; a TOML file of ``[[rule]]`` tables replaces t
 :func:`load_prop_rules`): trees, shrubs, tall-grass tufts, utility poles with wires between
 neighbours, sign posts, km posts, guardrail and fence runs, parked cars / trucks / buses beside
 the road, cars stopped at the kerb side of driving lanes, and distant hills; plus one terrain
-mesh under the whole town (slightly below the road, so the verge and the horizon are ground, not
-sky).
+mesh around the whole town (slightly below the road, so the verge and the horizon are ground, not
+sky; cut away under the paved surface so that no deep defect shows it, :mod:`.terrain`).
 
 Where: the *paved surface* is the union of the layout's segments of every kind but
 ``verge`` (props may stand on a verge: it is grass). A ``roadside`` rule walks the outline of
@@ -35,8 +35,9 @@ from shapely.geometry.polygon import orient
 from ..errors import RoadtwinError
 from ..model import MapObject, RoadSegment
 from .map_props import RULE as MAP_RULE, map_instances, quat_ypr
-from .prop_shapes import PROTOTYPES, Prototype, ground_grid, make_prototype
+from .prop_shapes import PROTOTYPES, Prototype, make_prototype
 from .prop_shapes import posed_footprints as _footprints
+from .terrain import terrain_mesh
 
 UNPAVED_KINDS = ("verge",)
 PLACES = ("roadside", "chain", "lane", "far")
@@ -315,6 +316,7 @@ class PropPlacer:
         self.outline_km = self.paved.boundary.length / 1000.0
         self.rings = _rings(self.paved)
         self.taken_groups: set[str] = set()      # instancer names already used (the map's)
+        self.defect_discs = np.zeros((0, 3))     # (x, y, radius) of the town's defects
 
     def place(self, rules: tuple[PropRule, ...], strict: bool = True) -> Props:
         out = Props()
@@ -580,23 +582,10 @@ class PropPlacer:
         yaw = rng.uniform(-np.pi, np.pi, len(s))
         return [self._finish(rule, names, idx, p, yaw, scale)]
 
-    def ground(self, cell_m: float = 10.0, pad_m: float = 40.0, apron_m: float = 700.0):
-        """Terrain under the town: a grid ``cell_m`` apart over the paved bounds + ``pad_m``,
-        coarser out to ``apron_m``, 8 cm under the surface model; triangles wholly under the
-        paved surface (0.5 m in) are dropped."""
-        x0, y0, x1, y1 = self.paved.bounds
-        xs, ys = ground_grid((x0 - pad_m, y0 - pad_m, x1 + pad_m, y1 + pad_m), cell_m, apron_m)
-        gx, gy = np.meshgrid(xs, ys, indexing="xy")
-        xy = np.column_stack([gx.ravel(), gy.ravel()])
-        z = self.height(xy) - 0.08
-        nx = len(xs)
-        i, j = np.meshgrid(np.arange(len(ys) - 1), np.arange(nx - 1), indexing="ij")
-        a = (i * nx + j).ravel()
-        faces = np.concatenate([np.column_stack([a, a + 1, a + nx + 1]), np.column_stack([a, a + nx + 1, a + nx])])
-        under = shapely.contains_xy(self.paved, xy[:, 0], xy[:, 1])
-        faces = faces[~under[faces].all(axis=1)]
-        used, inv = np.unique(faces, return_inverse=True)
-        return np.column_stack([xy[used], z[used]]), inv.reshape(-1, 3).astype(np.int64)
+    def ground(self):
+        """Terrain under the town, nowhere inside the paved surface (0.5 m in from its edge) nor
+        under a defect's disc (:func:`roadtwin_core.town.terrain.terrain_mesh`)."""
+        return terrain_mesh(self.paved, self.height, self.defect_discs)
 
 
 def place_props(segments: list[RoadSegment], rules: tuple[PropRule, ...], height, seed: int, owner: str,
@@ -613,7 +602,8 @@ def place_props(segments: list[RoadSegment], rules: tuple[PropRule, ...], height
     if strict is None:
         strict = rules != DEFAULT_RULES
     placer = PropPlacer(segments, height, seed, owner)
-    for x, y, r in np.asarray(taken if taken is not None else np.zeros((0, 3)), np.float64).reshape(-1, 3):
+    placer.defect_discs = np.asarray(taken if taken is not None else np.zeros((0, 3)), np.float64).reshape(-1, 3)
+    for x, y, r in placer.defect_discs:
         placer.occ.add(float(x), float(y), float(r))
     mapped = placer.place_map(list(map_objects)) if map_objects else None
     props = placer.place(rules, strict)

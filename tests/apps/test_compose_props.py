@@ -1,19 +1,23 @@
 """compose and the roadside world: ``props="none"`` writes no props layer (the stage is what it
 was before props existed), a rules file places exactly its rules, and the built-in rules fit what
-they can on a small layout without failing."""
+they can on a small layout without failing. The terrain never comes up inside the paved surface
+(a pothole deeper than its 8 cm would show it) yet meets the road edge without a gap."""
 from __future__ import annotations
 
 import json
 
 import numpy as np
 import pytest
+import shapely
 import triangle
 from pxr import Sdf, Usd, UsdGeom
+from shapely.geometry import Point, box
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from roadtwin_core import ComposeRules, RoadSegment, TownLayout
 from roadtwin_core.apps.compose.run import compose
+from roadtwin_core.town.terrain import terrain_mesh
 from roadtwin_core.usd import write_layout
 
 
@@ -98,3 +102,36 @@ def test_prototypes_carry_outward_flat_normals(layout, tmp_path):
         centre = np.array([pts[piece == k].mean(axis=0) for k in range(piece.max() + 1)])[piece[tris[:, 0]]]
         away = ((pts[tris].mean(axis=1) - centre) * normals[:, 0]).sum(axis=1)
         assert (away > 0).mean() >= 0.9, (mesh.GetPath(), (away > 0).mean())
+
+
+def _terrain_cover(v, f):
+    return shapely.union_all(shapely.polygons(np.asarray(v, float)[np.asarray(f).reshape(-1, 3)][:, :, :2]))
+
+
+def test_terrain_stays_out_of_the_road_and_meets_its_edge(layout, tmp_path):
+    """The road is the box 0..60 x 0..7 (the verges are not paved): no terrain 0.5 m or more in
+    from its edge, the 0.5 m band under the edge and everything around the road covered, every
+    terrain vertex 8 cm under the flat road (z = 0)."""
+    out = tmp_path / "terrain"
+    compose(layout, out, preview=False, executor="serial")
+    stage = Usd.Stage.Open(str(out / "town.usda"))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/Town/Props/Terrain"))
+    v = np.asarray(mesh.GetPointsAttr().Get(), float)
+    cover = _terrain_cover(v, mesh.GetFaceVertexIndicesAttr().Get())
+    road, inner = box(0, 0, 60, 7), box(0.5, 0.5, 59.5, 6.5)
+    assert cover.intersection(inner).area < 1e-6, cover.intersection(inner).area
+    around = box(-30, -30, 90, 37).difference(road)
+    assert cover.intersection(around).area == pytest.approx(around.area, rel=1e-9)
+    assert cover.intersection(road.difference(inner)).area >= 0.9 * (road.area - inner.area)
+    np.testing.assert_allclose(v[:, 2], -0.08, atol=1e-6)
+
+
+def test_terrain_is_cut_under_a_defect_at_the_road_edge():
+    """A defect's disc on the paved edge: no terrain under its paved part, terrain beyond the edge."""
+    road, disc = box(0, 0, 60, 7), Point(20, 0.2).buffer(0.6, quad_segs=64)
+    v, f = terrain_mesh(road, lambda xy: np.full(len(xy), 1.5), np.array([[20, 0.2, 0.6]]))
+    cover = _terrain_cover(v, f)
+    assert cover.intersection(disc.intersection(road)).area < 1e-6
+    assert cover.intersection(disc.difference(road)).area == pytest.approx(disc.difference(road).area, rel=1e-9)
+    assert cover.intersection(box(0.5, 0.5, 59.5, 6.5)).area < 1e-6
+    np.testing.assert_allclose(v[:, 2], 1.42)

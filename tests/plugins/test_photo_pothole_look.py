@@ -15,9 +15,9 @@ disc. The independent reference is the photo itself: the disc's linear luminance
   dielectric, F0 = 0.04, which does not scale with albedo: from above it lifts a 0.20 ratio to
   about 0.30). A double or missing sRGB decode, an albedo scaled on the wrong reference or st
   sampling the patch's border would each move it by far more than the tolerance.
-- The props layer's terrain (8 cm under the road) must not show through a deeper pothole's
-  floor: known to fail (roadtwin_core/town/props.py ``PropPlacer.ground``), kept as a strict
-  xfail so that the fix is noticed.
+- The props layer's terrain (8 cm under the road) does not show through a deeper pothole's
+  floor: it is cut away under the paved surface (roadtwin_core/town/terrain.py; before, grid
+  triangles partly under the road were kept whole and the terrain showed in the pothole).
 """
 from __future__ import annotations
 
@@ -161,8 +161,6 @@ def test_dark_disc_renders_as_dark_as_in_its_photo(disc_library):
     assert ratio == pytest.approx(want, abs=0.03), (ratio, want, decode(HOLE) / decode(ROAD))
 
 
-@pytest.mark.xfail(strict=True, reason="the props terrain lies 8 cm under the road (roadtwin_core/town/props.py "
-                   "PropPlacer.ground) and shows through the floor of a deeper pothole")
 def test_terrain_does_not_show_through_a_deep_pothole(disc_library):
     fr, world, (x, y, s), classes = render_from_above(disc_library, "default")
     r = np.hypot(world[..., 0] - x, world[..., 1] - y)
