@@ -38,6 +38,7 @@ from scipy.ndimage import map_coordinates
 from shapely.geometry import Polygon
 
 from .rectify import OrthoGrid, PhotoRig, grid_around, rectify
+from .seamless import REC709, linear_to_srgb8, srgb_to_linear
 
 DEEP_TYPES = {"pothole": 1.0, "depression": 0.5}
 RAVELLED = {"pothole"}
@@ -106,13 +107,10 @@ def to_road_albedo(colour: np.ndarray, ring: np.ndarray, target: float) -> np.nd
     scaled (in linear light) until the road around the defect (``ring``) has the luminance of
     the town's asphalt. The defect keeps its contrast to its own road, and sits in the town's
     road without a bright or dark halo whatever the photo's exposure was."""
-    c = colour.astype(np.float64) / 255.0
-    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)       # sRGB -> linear (IEC 61966-2-1)
-    lum = lin @ np.array([0.2126, 0.7152, 0.0722])
+    lin = srgb_to_linear(colour)
+    lum = lin @ REC709
     ref = float(np.median(lum[ring] if ring.any() else lum))
-    lin = np.clip(lin * (target / max(ref, 1e-4)), 0.0, 1.0)
-    c = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin ** (1 / 2.4) - 0.055)
-    return (c * 255 + 0.5).astype(np.uint8)
+    return linear_to_srgb8(lin * (target / max(ref, 1e-4)))
 
 
 def fade_into_road(colour: np.ndarray, foot: np.ndarray, alpha: np.ndarray, ring: np.ndarray,
@@ -124,21 +122,18 @@ def fade_into_road(colour: np.ndarray, foot: np.ndarray, alpha: np.ndarray, ring
     right next to a pothole became a white rim in the town. Before the blend, band texels
     brighter than ``bright_max`` x the ring's median luminance are dimmed to it (paint, glare;
     dark texels stay: a hole's dark edge often spills past a hand-drawn label)."""
-    c = colour.astype(np.float64) / 255.0
-    lin = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-    lum = lin @ np.array([0.2126, 0.7152, 0.0722])
+    lin = srgb_to_linear(colour)
+    lum = lin @ REC709
     sel = ring if ring.any() else ~foot
     if not sel.any():
         return colour
     road = np.median(lin[sel], axis=0)
-    cap = bright_max * float(road @ np.array([0.2126, 0.7152, 0.0722]))
+    cap = bright_max * float(road @ REC709)
     band = ~foot
     dim = np.where(band & (lum > cap), cap / np.maximum(lum, 1e-9), 1.0)
     lin = lin * dim[..., None]
     a = np.where(band, alpha, 1.0)[..., None]
-    lin = np.clip(a * lin + (1.0 - a) * road, 0.0, 1.0)
-    c = np.where(lin <= 0.0031308, lin * 12.92, 1.055 * lin ** (1 / 2.4) - 0.055)
-    return (c * 255 + 0.5).astype(np.uint8)
+    return linear_to_srgb8(a * lin + (1.0 - a) * road)
 
 
 def outline(mask: np.ndarray, grid: OrthoGrid, edge_m: float):

@@ -30,6 +30,7 @@ from scipy.ndimage import gaussian_filter
 ROUGHNESS_BASE = 0.8
 HEIGHT_PER_CONTRAST_M = 0.015
 LUMA = np.array([0.299, 0.587, 0.114])
+REC709 = np.array([0.2126, 0.7152, 0.0722])       # luminance of linear light (Rec. 709 primaries)
 
 
 def srgb_to_linear(c8: np.ndarray) -> np.ndarray:
@@ -45,7 +46,7 @@ def linear_to_srgb8(lin: np.ndarray) -> np.ndarray:
 
 def linear_luminance(srgb8: np.ndarray) -> float:
     """Mean linear (Rec. 709) luminance of an sRGB image."""
-    return float((srgb_to_linear(srgb8) @ np.array([0.2126, 0.7152, 0.0722])).mean())
+    return float((srgb_to_linear(srgb8) @ REC709).mean())
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
