@@ -286,6 +286,25 @@ def test_serial_and_local_executors_write_the_same_bytes(road, pm, tmp_path):
             assert a.read_bytes() == b.read_bytes(), f
 
 
+@pytest.mark.slow
+def test_ray_executor_writes_the_same_bytes_as_serial(road, pm, tmp_path):
+    """Issue 21: frames spread over a (local) Ray cluster are the frames of one process."""
+    pytest.importorskip("ray")
+    outs = {}
+    for name in ("serial", "ray"):
+        outs[name] = tmp_path / name
+        run_render(road, outs[name], RenderOptions(frames=4, rig="survey", size="64x40", views="defects:0.5",
+                                                   randomize=True, classmap="builtin:road_defects_br",
+                                                   formats="mmseg", executor=name, workers=2, seed=9), pm=pm)
+    files = sorted(p.relative_to(outs["serial"]) for p in outs["serial"].rglob("*") if p.is_file())
+    assert files and files == sorted(p.relative_to(outs["ray"]) for p in outs["ray"].rglob("*") if p.is_file())
+    images = [f for f in files if f.suffix in (".png", ".jpg")]
+    assert len(images) >= 8                              # 4 frames: images and labels
+    for f in files:
+        if f.name != "meta.json":
+            assert (outs["ray"] / f).read_bytes() == (outs["serial"] / f).read_bytes(), f
+
+
 # --------------------------------------------------------------------------- rig cameras
 def test_rig_cameras_round_trip_and_render_like_a_poses_file(road, pm, tmp_path):
     from pxr import Gf, Usd, UsdGeom
