@@ -93,6 +93,10 @@ class StereoDefectsParams:
     subpixel_reject_residual: float = field(2.0, lo=0.0, hi=100.0, doc="sub-pixel refinement: a match whose residual "
                                             "(grey levels a shift leaves unexplained) exceeds this x the frame's median "
                                             "is invalid (0 = keep all); why: as subpixel_reject_error")
+    border_px: int = field(0, lo=0, hi=1000, doc="regions reaching within this many pixels of the map's edge are "
+                           "dropped (0 = keep, the default): cut by the edge, a region has no road rim on that side "
+                           "to check its depth against; a camera driving on sees it whole later. On bench/loop.py's "
+                           "tuning town most false detections touch the crop's top row (docs/stereo_detector.md)")
     texture: bool = field(True, doc="textured assets: each defect wears the left image's pixels of its footprint "
                           "(inputs 'rgb', else a pair's 'left'; texture.py), fading into the road at its outline")
     texel_m: float = field(0.0, lo=0.0, hi=0.1, doc="texture patch resolution on the road (m per texel); 0: the "
@@ -228,7 +232,8 @@ class StereoDefects:
         if valid.mean() < 0.05:
             raise RoadtwinError(f"{source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")
         seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, min_area_frac=p.min_area_frac,
-                            min_depth_m=p.floor_depth_m, min_area_m2=p.floor_area_m2)
+                            min_depth_m=p.floor_depth_m, min_area_m2=p.floor_area_m2,
+                            border_px=p.border_px)
         road = None
         if transformed_in:
             dt = disp

@@ -81,6 +81,7 @@ class SegmentParams:
     mask_k: float = 10.0         # local model: regions reaching this many sigmas are masked from the road fit
     min_depth_m: float = 0.0     # physical floor (metric maps only): a kept region reaches this far below the road
     min_area_m2: float = 0.0     # physical floor (metric maps only): a kept region covers this much road
+    border_px: int = 0           # regions reaching within this of the map's edge are dropped (0 = keep)
 
 
 def load_disparity(path: str | Path, scale: float = 1.0) -> np.ndarray:
@@ -266,8 +267,25 @@ def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | N
     if p.open_px > 0:  # pieces a relative edge cut off that are smaller than the speckle scale
         ker = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * p.open_px + 1,) * 2)
         region = cv2.morphologyEx(region.astype(np.uint8), cv2.MORPH_OPEN, ker).astype(bool)
+    if p.border_px > 0:
+        region = _clear_border(region, p.border_px)
     n, lab = cv2.connectedComponents(region.astype(np.uint8), connectivity=8)
     return lab.astype(np.int32)
+
+
+def _clear_border(region: np.ndarray, px: int) -> np.ndarray:
+    """Regions reaching within ``px`` of the map's edge removed (as scikit-image's ``clear_border``):
+    a region cut by the edge has no road rim on that side, so its depth and outline cannot be
+    checked against the road around it; a camera driving on sees it whole in a later frame. On
+    bench/loop.py's tuning town 34 of 48 false detections touch the crop's edge: far-road (12-15
+    m) matching errors that run into its top row (bench/loop_false_detections.py;
+    docs/stereo_detector.md)."""
+    import cv2
+
+    _, lab = cv2.connectedComponents(region.astype(np.uint8), connectivity=8)
+    edge = np.ones(region.shape, bool)
+    edge[px:-px, px:-px] = False
+    return region & ~np.isin(lab, np.unique(lab[edge & region]))
 
 
 def _physical_floor(lab: np.ndarray, n: int, keep: np.ndarray, metric: tuple[np.ndarray, np.ndarray],
