@@ -268,13 +268,19 @@ def test_parse_views():
 
 
 # --------------------------------------------------------------------------- executors
-def test_serial_and_local_executors_write_the_same_bytes(road, pm, tmp_path):
+def render_on(executors, road, pm, tmp_path) -> dict:
+    """The same 4 randomized survey frames rendered on each executor: {name: output folder}."""
     outs = {}
-    for name in ("local", "serial"):
+    for name in executors:
         outs[name] = tmp_path / name
         run_render(road, outs[name], RenderOptions(frames=4, rig="survey", size="64x40", views="defects:0.5",
                                                    randomize=True, classmap="builtin:road_defects_br",
                                                    formats="mmseg", executor=name, workers=2, seed=9), pm=pm)
+    return outs
+
+
+def test_serial_and_local_executors_write_the_same_bytes(road, pm, tmp_path):
+    outs = render_on(("local", "serial"), road, pm, tmp_path)
     files = sorted(p.relative_to(outs["serial"]) for p in outs["serial"].rglob("*") if p.is_file())
     assert files == sorted(p.relative_to(outs["local"]) for p in outs["local"].rglob("*") if p.is_file())
     for f in files:
@@ -290,12 +296,7 @@ def test_serial_and_local_executors_write_the_same_bytes(road, pm, tmp_path):
 def test_ray_executor_writes_the_same_bytes_as_serial(road, pm, tmp_path):
     """Issue 21: frames spread over a (local) Ray cluster are the frames of one process."""
     pytest.importorskip("ray")
-    outs = {}
-    for name in ("serial", "ray"):
-        outs[name] = tmp_path / name
-        run_render(road, outs[name], RenderOptions(frames=4, rig="survey", size="64x40", views="defects:0.5",
-                                                   randomize=True, classmap="builtin:road_defects_br",
-                                                   formats="mmseg", executor=name, workers=2, seed=9), pm=pm)
+    outs = render_on(("serial", "ray"), road, pm, tmp_path)
     files = sorted(p.relative_to(outs["serial"]) for p in outs["serial"].rglob("*") if p.is_file())
     assert files and files == sorted(p.relative_to(outs["ray"]) for p in outs["ray"].rglob("*") if p.is_file())
     images = [f for f in files if f.suffix in (".png", ".jpg")]

@@ -5,38 +5,17 @@ stderr, exit 2, and no half-written library (an earlier one stays as it was).
 The reconstruction itself: tests/plugins/test_photo_defects.py."""
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
 import roadtwin_defects
 import roadtwin_lookalikes
+from cli_run import one_line, run_cli
 from photo_scene import SURVEY, H, W, render_photo, save_pair
 from roadtwin_core import PluginManager, RoadtwinError
 from roadtwin_core.apps.reconstruct import PhotoInputs, check_photo_inputs
 from roadtwin_core.apps.reconstruct.run import defect_types
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def run_cli(*args) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("ROADTWIN_PLUGINS", "ROADTWIN_DEBUG")}
-    return subprocess.run([sys.executable, "-m", "roadtwin_core.cli", *map(str, args)], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=120)
-
-
-def one_line(r: subprocess.CompletedProcess, *needles: str) -> str:
-    err = r.stderr.strip()
-    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
-    assert "\n" not in err and "Traceback" not in err, err
-    for n in needles:
-        assert n in err, err
-    return err
 
 
 @pytest.fixture(scope="module")

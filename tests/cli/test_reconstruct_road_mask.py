@@ -4,25 +4,16 @@ mask that takes one pothole's region off the road removes that detection and kee
 missing or wrong-size mask is one line on stderr, exit 2, and nothing is written."""
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from cli_run import run_cli
 from roadtwin_stereo.synthetic import RoadScene
 
-REPO = Path(__file__).resolve().parents[2]
 POTHOLES = ((-0.5, 0.2, 0.22, 0.05), (0.55, 1.2, 0.25, 0.05))   # (x, y, R, D) in the road plane, m
-
-
-def run_cli(*args) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("ROADTWIN_PLUGINS", "ROADTWIN_DEBUG")}
-    return subprocess.run([sys.executable, "-m", "roadtwin_core.cli", *map(str, args)], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=120)
 
 
 @pytest.fixture(scope="module")

@@ -21,9 +21,6 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
@@ -32,6 +29,7 @@ import pytest
 import triangle
 from pxr import Usd, UsdShade
 
+from cli_run import one_line, run_cli
 from photo_scene import SURVEY, H, W, save_pair
 from roadtwin_core import ComposeRules, RoadSegment, RoadtwinError, TownLayout
 from roadtwin_core.apps.compose.run import compose
@@ -47,21 +45,6 @@ BR = {"classes": {2: ("crack", "crack"), 3: ("pothole", "pothole")}, "road_class
       "rig": SURVEY}
 # the tiny frames are 512x320: a pixel covers twice the road of a full-size one
 FAST = dict(size=256, max_gsd_m=0.05)
-
-
-def run_cli(*args) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("ROADTWIN_PLUGINS", "ROADTWIN_DEBUG")}
-    return subprocess.run([sys.executable, "-m", "roadtwin_core.cli", *map(str, args)], cwd=REPO, env=env,
-                          capture_output=True, text=True, timeout=120)
-
-
-def one_line(r: subprocess.CompletedProcess, *needles: str) -> str:
-    err = r.stderr.strip()
-    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
-    assert "\n" not in err and "Traceback" not in err, err
-    for n in needles:
-        assert n in err, err
-    return err
 
 
 @pytest.fixture(scope="module")
