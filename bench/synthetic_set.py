@@ -13,8 +13,10 @@ pack``: JPEG + class-mapped PNG labels at 512x320) into one folder, names prefix
     # OUT/synthetic/{images,labels,classes.json}: what bench/perception.py --synthetic reads
 
 Prints per scene: compose seconds, render seconds and frames/s, pack seconds. Not a test.
-``--scenes`` picks some; ``--no-lookalikes`` / ``--no-props`` / ``--no-photo`` switch a realism
-item off for an ablation (issue 22: each item off in turn).
+``--scenes`` picks some; ``--no-photo`` (item 1, photo defects), ``--no-road-textures`` (item 2,
+road surfaces from photos), ``--no-props`` (item 3), ``--no-lookalikes`` (item 4) and ``--no-camera``
+(item 5, the measured camera targets: render with the class map minus its ``camera_targets``, so
+``--randomize`` draws the generic camera) switch one realism item off for the ablation of issue 22.
 """
 from __future__ import annotations
 
@@ -142,7 +144,7 @@ def compose_scene(scene: Scene, args, work: Path, index: int) -> float:
                "--props", "none" if args.no_props else "default", "--no-preview", "-o", str(work / "town")]
     if scene.surface:
         compose += ["--surface", scene.surface]
-    if args.road_textures:
+    if args.road_textures and not args.no_road_textures:
         names = [m["name"] for m in json.loads((args.road_textures / "materials.json").read_text())["materials"]]
         compose += ["--road-textures", str(args.road_textures)]
         if scene.road_photo is not None and names:
@@ -159,7 +161,7 @@ def render_scene(scene: Scene, args, work: Path, index: int) -> dict:
     shutil.rmtree(work / "render", ignore_errors=True)
     shutil.rmtree(work / "packed", ignore_errors=True)
     render = [*cli, "render", str(work / "town" / "town.usda"), "--rig", "survey", "--views", f"defects:{args.defect_share}:clear",
-              "--randomize", "--classmap", "builtin:road_defects_br", "--frames", str(args.frames), "--size", args.size,
+              "--randomize", "--classmap", class_map(args, work), "--frames", str(args.frames), "--size", args.size,
               "--seed", str(1000 + index), "--formats", "mmseg", "-o", str(work / "render")]
     if args.device:
         render += ["--device", args.device]
@@ -171,6 +173,18 @@ def render_scene(scene: Scene, args, work: Path, index: int) -> dict:
     t_pack = run([sys.executable, str(REPO / "bench/perception.py"), "pack", str(work / "render"), str(work / "packed"),
                   "--size", args.size], log)
     return {"render_s": t_render, "frames": args.frames, "frames_per_s": args.frames / t_render, "pack_s": t_pack}
+
+
+def class_map(args, work: Path) -> str:
+    """The real frames' class map; with --no-camera a copy without its measured camera targets."""
+    if not args.no_camera:
+        return "builtin:road_defects_br"
+    from importlib import resources
+    text = resources.files("roadtwin_core.render").joinpath("classmaps", "road_defects_br.toml").read_text()
+    kept = [line for line in text.splitlines() if not line.startswith("camera_targets")]
+    path = work / "classmap_no_camera.toml"
+    path.write_text("\n".join(kept) + "\n")
+    return str(path)
 
 
 def merge(out: Path, names: list[str]) -> int:
@@ -213,6 +227,8 @@ def main() -> None:
     ap.add_argument("--no-lookalikes", action="store_true")
     ap.add_argument("--no-props", action="store_true")
     ap.add_argument("--no-photo", action="store_true")
+    ap.add_argument("--no-road-textures", action="store_true")
+    ap.add_argument("--no-camera", action="store_true")
     args = ap.parse_args()
     console = Console()
     args.out.mkdir(parents=True, exist_ok=True)

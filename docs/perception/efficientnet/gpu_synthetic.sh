@@ -7,9 +7,10 @@
 #   bash docs/perception/efficientnet/gpu_synthetic.sh compose              # photo library + 5 scenes composed
 #   bash docs/perception/efficientnet/gpu_synthetic.sh render SCENE...      # rendered on CUDA, packed, merged
 # The project's code is the tree of the call (PYTHONPATH before the installed wheel), so each call
-# runs the code it carries. Output: /root/sset/synthetic (bench/perception.py --synthetic).
+# runs the code it carries. Output: $SSET/synthetic (default /root/sset) (bench/perception.py --synthetic).
 set -e -o pipefail
 FRAMES=${FRAMES:-4000}
+SSET=${SSET:-/root/sset}        # the output folder (one per variant of the ablation)
 for d in /root/roadtwin-stage /root/wheels; do      # large files travel cut in parts: put them back together
   ( cd $d && for p in *.part0; do [ -e "$p" ] || continue; b=${p%.part0}; [ -e "$b" ] || cat "$b".part? > "$b"; done )
 done
@@ -31,8 +32,8 @@ if [ "$phase" = compose ]; then
     echo "library: $(ls /root/lib/*.usda | grep -vc geom) assets"
   fi
   python3 bench/synthetic_set.py --library /root/lib --road-textures /root/photo_surfaces --phase compose --jobs 5 \
-    --frames $FRAMES -o /root/sset "$@"
+    --frames $FRAMES -o $SSET "$@"
 else
   python3 bench/synthetic_set.py --phase render --device cuda --frames $FRAMES --jobs ${JOBS:-5} --workers ${WORKERS:-3} \
-    -o /root/sset --scenes "$@"
+    -o $SSET --scenes "$@"
 fi
