@@ -20,7 +20,7 @@ done
 export PYTHONPATH=$PWD:$PWD/plugins:$PYTHONPATH PYTHONUNBUFFERED=1
 phase=$1; shift
 if [ "$phase" = compose ]; then
-  if [ ! -d /root/lib ]; then       # the photo library: 4 processes over the 600 train frames
+  if [ ! -d /root/lib ] && [[ " $* " != *" --no-photo "* ]]; then   # the photo library: 4 processes over the 600 train frames
     ls /root/photos/images/*.jpg | split -n r/4 - /tmp/photos_
     for part in /tmp/photos_*; do
       python3 -m roadtwin_core.cli reconstruct photos $(cat $part) --labels /root/photos/labels \
