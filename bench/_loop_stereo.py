@@ -150,7 +150,8 @@ def _summary(rows: list[dict], det: int, false: int, frames: int, per_frame: lis
 
 def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tuple[float, float],
                    floors: list[tuple[float, float]], cache: Path | None = None,
-                   reject: tuple[float, float] | None = None, border_px: int = 0) -> list[dict]:
+                   reject: tuple[float, float] | None = None, border_px: int = 0,
+                   k_region: float | None = None) -> list[dict]:
     """One summary per (floor_depth_m, floor_area_m2) in ``floors``, all on the same disparity maps."""
     from roadtwin_stereo import StereoDefects
 
@@ -166,8 +167,9 @@ def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tu
         inputs = {"disparity": disp.astype(np.float64), "K": fr["K"], "baseline": fr["baseline"],
                   "road_mask": road_mask(fr["semantic"], classes), "source": f"frame_{k:03d}"}
         for a, (depth_m, area_m2) in zip(acc, floors):
-            res = rec.run(inputs, rec.Params(floor_depth_m=depth_m, floor_area_m2=area_m2,
-                                                border_px=border_px))
+            extra = {} if k_region is None else {"k_region": k_region}
+            res = rec.run(inputs, rec.Params(floor_depth_m=depth_m, floor_area_m2=area_m2, border_px=border_px,
+                                             **extra))
             f = frame_figures(fr, res, instances, truth)
             a["rows"] += f["rows"]
             a["det"] += f["detections"]

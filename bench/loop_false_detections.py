@@ -17,7 +17,7 @@ loop's "false" count, bench/_loop_stereo.py), on the disparity maps bench/loop.p
 - ``other``: none of these (textured, flat, open road).
 
     PYTHONPATH=.:plugins .venv/bin/python bench/loop_false_detections.py [--out out/loop_tune]
-        [--cases tune_highway_D_seed23,tune_town_seed3] [--tag lk6x2_reject1.3x2]
+        [--cases tune_highway_D_seed23,tune_town_seed3] [--tag lk6x2_reject1.3x2] [--k-region K]
 """
 from __future__ import annotations
 
@@ -108,6 +108,8 @@ def main() -> None:
     ap.add_argument("--cases", default="tune_highway_D_seed23,tune_town_seed3")
     ap.add_argument("--tag", default="lk6x2_reject1.3x2", help="the kept map: OUT/CASE/disparity_1280x720_TAG.npz")
     ap.add_argument("--border-px", type=int, default=0, help="StereoDefectsParams.border_px")
+    ap.add_argument("--k-region", type=float, default=StereoDefects.Params().k_region,
+                    help="StereoDefectsParams.k_region (0 = the peak rule alone; bench/loop_missed.py)")
     ap.add_argument("--exclude-marking", action="store_true", help="road mask without lane-marking pixels")
     args = ap.parse_args()
     rec = StereoDefects()
@@ -129,7 +131,7 @@ def main() -> None:
                 mask = mask & ~_ring(fr["semantic"] == classes.index("lane_marking"), 3)
             res = rec.run({"disparity": maps[f"f{k:03d}"].astype(np.float64), "K": fr["K"],
                            "baseline": fr["baseline"], "road_mask": mask, "source": f"frame_{k:03d}"},
-                          rec.Params(texture=False, border_px=args.border_px))
+                          rec.Params(texture=False, border_px=args.border_px, k_region=args.k_region))
             for cause, detail in classify(fr, res.labels, classes):
                 causes[cause] += 1
                 details[f"{cause}: {detail}"] += bool(detail)

@@ -26,7 +26,9 @@ as road nor searched for defects); ``rgb`` (optional, path or array: the left co
 disparity map, its size; a pair's ``left`` serves otherwise): with it and ``params.texture`` (the
 default) :meth:`StereoDefects.write` gives every asset its footprint's pixels as a decal texture
 and a ``roadtwin:source`` naming the frame, the instance and ``license`` (default: the first line
-of a LICENSE file beside the image or up to three folders above).
+of a LICENSE file beside the image or up to three folders above); ``depth_scale`` (optional dict,
+e.g. ``texture.nominal_depth_scale(...)`` for a map rebuilt by ``disparity_from_transformed``):
+kept in each model's params, its asset says ``roadtwin:depthScale`` (docs/architecture.md).
 """
 from __future__ import annotations
 
@@ -46,7 +48,7 @@ from .road_model import metric_road_depth
 from .segment import (SegmentParams, f1_score, load_disparity, load_label, road_residual, segment_defects,
                       segment_residual)
 from .subpixel import refine_disparity
-from .texture import TextureSource, make_patch, source_text, texture_source
+from .texture import TextureSource, check_depth_scale, make_patch, source_text, texture_source
 from .transform import RoadDisparityModel, fit_road_disparity, sgbm_disparity, transform_disparity
 
 __all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "RoadDisparityModel",
@@ -58,6 +60,12 @@ __all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "
 class StereoDefectsParams:
     k_grow: float = field(3.0, lo=0.5, doc="candidate pixels: deviation below the road > k_grow robust sigma")
     k_seed: float = field(10.0, lo=0.5, doc="a defect's peak depth exceeds k_seed road-noise sigmas (small-scale, after the local road model)")
+    k_region: float = field(12.0, lo=0.0, hi=1000.0, doc="metric inputs (a raw disparity or a pair, with K and "
+                            "baseline): a candidate region is also a defect when its mean depth exceeds this x the "
+                            "noise of a mean over as many road pixels, measured on the frame (segment.py step 5c; 0 = "
+                            "off). Why: a far pothole is a shallow dip over many pixels that the peak rule (k_seed) "
+                            "misses; 12 chosen on bench/loop.py's tuning cases (bench/README.md, loop section). Not applied "
+                            "to transformed (normalised) maps, where the physical floor cannot guard it")
     min_area_frac: float = field(0.0, lo=0.0, hi=1.0, doc="optional floor on a defect's area (fraction of the image)")
     grid_m: float = field(0.01, lo=1e-4, hi=1.0, doc="grid sampling step of the defect mesh (m)")
     disparity_scale: float = field(1.0, lo=1e-9, doc="integer disparity PNGs are divided by this (KITTI: 256)")
@@ -194,6 +202,10 @@ class StereoDefects:
         baseline = inputs.get("baseline")
         if baseline is not None and not (np.isfinite(baseline) and baseline > 0):
             raise RoadtwinError(f"{self.name}: baseline must be a positive number of meters, got {baseline!r}")
+        try:
+            depth_scale = check_depth_scale(inputs.get("depth_scale"))
+        except ValueError as exc:
+            raise RoadtwinError(f"{self.name}: {exc}") from None
         missing = " and ".join(n for n, v in (("K", K), ("baseline", baseline)) if v is None)
         if inputs.get("disparity") is not None:
             src = inputs["disparity"]
@@ -231,7 +243,7 @@ class StereoDefects:
         valid = np.isfinite(disp)
         if valid.mean() < 0.05:
             raise RoadtwinError(f"{source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")
-        seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, min_area_frac=p.min_area_frac,
+        seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, k_region=p.k_region, min_area_frac=p.min_area_frac,
                             min_depth_m=p.floor_depth_m, min_area_m2=p.floor_area_m2,
                             border_px=p.border_px)
         road = None
@@ -257,7 +269,8 @@ class StereoDefects:
                     m = DefectModel(f"{stem}_defect_{i:02d}", "pothole", inst.vertices, inst.faces, inst.boundary,
                                     source=source, params={"reconstructor": self.name, "instance": i,
                                                            "pixels": inst.pixels, "grid_m": p.grid_m,
-                                                           "roll_rad": None if road is None else road.theta})
+                                                           "roll_rad": None if road is None else road.theta,
+                                                           **({"depth_scale": depth_scale} if depth_scale else {})})
                 except (ValueError, RoadtwinError):
                     continue  # an instance too small or too close to the image edge to mesh
                 if m.depth_m < p.min_depth_m:

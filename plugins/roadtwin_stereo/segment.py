@@ -34,6 +34,15 @@ is absorbed by measuring every threshold in units the frame itself supplies:
    of road. A transformed, normalised map has lost its units: there the floor is not applied.
    (On bench/loop.py's drives it removes few: their false detections are local 0.2-0.5 px
    matching errors, metrically as deep as potholes; docs/stereo_detector.md.)
+5c. **A region's mean** (metric maps only, ``k_region``; issue 20). A far pothole is a 0.3-0.6 px
+   dip over 500-2000 px: 5-9 sigma at its deepest, as deep as the matcher's small false dips,
+   so step 5 misses it (bench/loop_missed.py: 45 of the 49 misses on the loop's tuning highway
+   had a measured dip within 0.1 px of the true one). A candidate region is also kept when its
+   mean depth exceeds ``k_region`` times the noise of a mean over as many road pixels, measured on
+   the frame at block sizes 2-64 px (:func:`~.road_model.mean_noise`: the matcher's errors are correlated,
+   so that noise falls slower than 1 / sqrt(N)). Only where the physical floor of step 5b
+   guards it: on the 13 normalised real frames the rule finds the road's other, unlabelled dips
+   (mean F1 0.911 -> 0.875 at 12), and there is no metric floor there to hold them back.
 6. **Where a pothole ends.** Each kept region is cut at ``max(k_grow, depth_frac x its own peak
    depth)``: a deep pothole's edge is set relative to that pothole, so a shallow sag of the road
    around it (seen as twice the labelled area on other roads) does not join it.
@@ -60,7 +69,7 @@ from scipy import ndimage as ndi
 
 from roadtwin_core import RoadtwinError
 
-from .road_model import deep_regions, local_road_residual
+from .road_model import deep_regions, local_road_residual, region_significance
 
 MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian x this = its standard deviation
 
@@ -69,6 +78,8 @@ MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian x this = its standard deviation
 class SegmentParams:
     k_grow: float = 3.0          # candidate pixel: below the road by more than k_grow road sigmas
     k_seed: float = 10.0         # a kept region's peak depth exceeds k_seed road sigmas
+    k_region: float = 0.0        # or its mean depth exceeds k_region x the noise of a mean over as many road pixels
+                                 # (metric maps only, where the physical floor guards it; 0 = off)
     depth_frac: float = 0.0      # a region's edge: max(k_grow, depth_frac x its peak depth) sigmas
     min_area_frac: float = 0.0   # optional floor on a region's area (fraction of the image); 0 = off
     blur_px: float = 2.0         # Gaussian sigma of the residual smoothing (pixels)
@@ -243,6 +254,8 @@ def segment_residual(z: np.ndarray, valid: np.ndarray, params: SegmentParams | N
         zi = zs[starts[i]:starts[i] + counts[i]]
         peak[i] = -np.percentile(zi, 10)
     keep = peak > p.k_seed
+    if p.k_region > 0 and metric is not None:  # step 5c: only where the physical floor guards it
+        keep |= region_significance(z, lab, n, valid & (np.abs(z) < p.k_grow)) > p.k_region
     keep[0] = False
     if p.min_area_frac > 0:
         keep &= counts >= p.min_area_frac * z.size

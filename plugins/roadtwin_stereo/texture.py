@@ -17,7 +17,9 @@ vertices' st is exactly affine in XY (``DefectLook.fit``), which is what a decal
   ``road_albedo``'s luminance, as the photo reconstructor does (a minimal copy of that rule:
   a plugin may not import another, and no public core helper holds it);
 - :func:`disparity_from_transformed`: a raw disparity back from a normalised transformed map
-  (Fan et al.'s ``disp_tg``) and a *nominal* rig, so those frames can be meshed at all.
+  (Fan et al.'s ``disp_tg``) and a *nominal* rig, so those frames can be meshed at all;
+  :func:`nominal_depth_scale` is the mark its models carry (``inputs["depth_scale"]``: the asset
+  says ``roadtwin:depthScale = "nominal"`` with the numbers used, docs/architecture.md).
 """
 from __future__ import annotations
 
@@ -181,3 +183,28 @@ def disparity_from_transformed(transformed: np.ndarray, K: np.ndarray, baseline_
     out = d_road + (d - road) / units_per_px
     out[(n_dot_ray >= 0) | ~(out > 0)] = np.nan
     return out
+
+
+def nominal_depth_scale(K: np.ndarray, baseline_m: float, height_m: float, pitch_down_deg: float,
+                        units_per_px: float) -> dict[str, Any]:
+    """The mark of models meshed from :func:`disparity_from_transformed`'s map (give it as
+    ``inputs["depth_scale"]``): their relief is measured but its metres rest on these assumed
+    numbers, so each asset says ``roadtwin:depthScale = "nominal"`` and keeps them."""
+    return {"kind": "nominal", "basis": "transformed disparity (min-max normalised) through an assumed rig",
+            "fx_px": float(np.asarray(K, np.float64)[0, 0]), "baseline_m": float(baseline_m),
+            "height_m": float(height_m), "pitch_down_deg": float(pitch_down_deg), "units_per_px": float(units_per_px)}
+
+
+def check_depth_scale(mark: Any) -> dict[str, Any] | None:
+    """``inputs["depth_scale"]`` checked: None, or a dict with a string ``kind`` and string or
+    number values (what a USD customData holds). ValueError names what is wrong."""
+    if mark is None:
+        return None
+    if not isinstance(mark, dict) or not isinstance(mark.get("kind"), str) or not mark["kind"]:
+        raise ValueError(f"depth_scale input must be a dict with a string 'kind' (e.g. nominal_depth_scale(...)), "
+                         f"got {mark!r}")
+    bad = [k for k, v in mark.items() if not isinstance(k, str) or isinstance(v, bool)
+           or not isinstance(v, (str, int, float)) or (isinstance(v, float) and not np.isfinite(v))]
+    if bad:
+        raise ValueError(f"depth_scale input: {bad[0]!r} must be a string or a finite number, got {mark[bad[0]]!r}")
+    return dict(mark)

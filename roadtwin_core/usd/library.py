@@ -25,6 +25,7 @@ GEOM_SUFFIX = ".geom.usda"                    # its geometry payload, beside it
 LOOK_MATERIAL = "Surface"                     # /<asset>/Looks/Surface: a textured asset's own material
 LOOK_ROLES = ("diffuse", "roughness", "normal")
 ST_AFFINE_TOLERANCE = 1e-4                    # st must be affine in local XY to be a decal (st units)
+DEPTH_SCALE_PARAM = "depth_scale"             # params entry of a model whose depth is not in measured metres
 
 
 def is_asset_file(path: Path) -> bool:
@@ -54,6 +55,7 @@ def defect_labels(defect_type: str, semantic_classes: dict[str, str] | None = No
 def write_defect_asset(model: DefectModel, path: str | Path, semantic_class: str = DEFECT_CLASS) -> Path:
     path = Path(path)
     name = model.name
+    depth_scale = _depth_scale(model)          # checked before anything is written
     geom_path = path.with_name(f"{path.stem}{GEOM_SUFFIX}")
     gstage = new_stage(geom_path, name, f"roadtwin defect geometry: {name}")
     root = UsdGeom.Xform.Define(gstage, f"/{name}")
@@ -77,6 +79,8 @@ def write_defect_asset(model: DefectModel, path: str | Path, semantic_class: str
     apply_labels(p, defect_labels(model.defect_type, {model.defect_type: semantic_class}))
     set_attrs(p, "roadtwin:defect", {k: v for k, v in model.attributes().items() if k != "source"})
     set_attrs(p, "roadtwin", {"source": model.source, "params": json.dumps(model.params, sort_keys=True)})
+    if depth_scale is not None:
+        _write_depth_scale(p, depth_scale)
     lo, hi = model.vertices.min(axis=0), model.vertices.max(axis=0)
     UsdGeom.ModelAPI(p).SetExtentsHint(Vt.Vec3fArray([tuple(lo.tolist()), tuple(hi.tolist())]))
     p.GetPayloads().AddPayload(f"./{geom_path.name}")
@@ -85,6 +89,27 @@ def write_defect_asset(model: DefectModel, path: str | Path, semantic_class: str
     stage.GetRootLayer().Save()
     del root
     return path
+
+
+def _depth_scale(model: DefectModel) -> dict | None:
+    """``model.params["depth_scale"]``: how the model's depth was scaled when not measured metres
+    (``{"kind": "nominal", <the numbers used>}``); None when it does not say."""
+    mark = model.params.get(DEPTH_SCALE_PARAM)
+    if mark is not None and (not isinstance(mark, dict) or not isinstance(mark.get("kind"), str) or not mark["kind"]):
+        raise RoadtwinError(f"defect model {model.name!r}: params[{DEPTH_SCALE_PARAM!r}] must be a dict with a "
+                            f"string 'kind', got {mark!r}")
+    return mark
+
+
+def _write_depth_scale(prim: Usd.Prim, mark: dict) -> None:
+    """``roadtwin:depthScale`` = the mark's kind, its customData the numbers the scale came from,
+    so a tool sees it without parsing params; kept in params too, it survives a read and
+    re-write (a town's library/)."""
+    attr = prim.CreateAttribute("roadtwin:depthScale", Sdf.ValueTypeNames.String, custom=True)
+    attr.Set(mark["kind"])
+    basis = {k: v for k, v in sorted(mark.items()) if k != "kind" and isinstance(v, (str, int, float))}
+    if basis:
+        attr.SetCustomData(basis)
 
 
 def look_texture_files(model: DefectModel) -> dict[str, str]:

@@ -9,6 +9,9 @@ with their measured depth, textured).
    nominal rig): its asset validates, names the frame and its license, composes into a town
    whose decal material carries the asset's pixels and is bound to the pothole's pieces.
 3. Same inputs, same bytes.
+4. The nominal scale is in the file: such an asset says ``roadtwin:depthScale = "nominal"`` with
+   the rig numbers the test gave it (customData), reads back with them, and keeps the mark in a
+   composed town's library/; a metric stereo asset, a parametric one and a photo one claim nothing.
 """
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
 ROOT = Path(__file__).resolve().parents[2]
 import roadtwin_stereo as rs
 from roadtwin_stereo.synthetic import BowlScene
-from roadtwin_stereo.texture import disparity_from_transformed, license_for
+from roadtwin_stereo.texture import disparity_from_transformed, license_for, nominal_depth_scale
 
 SHARED = ROOT.parent / "shared" / "data" / "stereo_pothole"
 DISC_R = 0.12            # the dark disc painted in the bowl (m)
@@ -138,8 +141,11 @@ def real_frame(tmp: Path, name: str = "01", half: int = 300) -> tuple[object, li
     Kc[1, 2] -= v0
     rgb = cv2.cvtColor(cv2.imread(str(SHARED / "rgb" / f"{name}.jpg")), cv2.COLOR_BGR2RGB)[crop]
     st = rs.StereoDefects()
+    scale = nominal_depth_scale(K, NOMINAL["baseline"], NOMINAL["height_m"], NOMINAL["pitch_down_deg"],
+                                NOMINAL["units_per_px"])
     r = st.run({"disparity": disp[crop], "K": Kc, "baseline": NOMINAL["baseline"], "rgb": rgb,
-                "source": str(SHARED / "rgb" / f"{name}.jpg"), "license": license_for(SHARED / "rgb" / f"{name}.jpg")})
+                "source": str(SHARED / "rgb" / f"{name}.jpg"), "license": license_for(SHARED / "rgb" / f"{name}.jpg"),
+                "depth_scale": scale})
     return r, st.write(r, tmp)
 
 def test_real_frame_asset_validates_and_names_frame_and_license(tmp_path):
@@ -177,6 +183,76 @@ def test_real_frame_asset_composes_with_its_decal_bound(tmp_path):
             diffuse = mat.GetPrim().GetChild("Diffuse")
             town_png = Path(diffuse.GetAttribute("inputs:file").Get().resolvedPath)
             assert town_png.read_bytes() == (lib / "textures" / f"{paths[0].stem}_diffuse.png").read_bytes()
+    town_copy = Usd.Stage.Open(str(done.town.parent / "library" / f"lib_{paths[0].stem}.usda"))
+    assert town_copy.GetDefaultPrim().GetAttribute("roadtwin:depthScale").Get() == "nominal"  # the town's copy too
+
+def depth_scale_mark(asset: Path) -> tuple[str | None, dict]:
+    """``roadtwin:depthScale`` and its customData as USD reads them (None: no attribute)."""
+    stage = Usd.Stage.Open(str(asset))
+    attr = stage.GetDefaultPrim().GetAttribute("roadtwin:depthScale")
+    return (attr.Get(), dict(attr.GetCustomData())) if attr else (None, {})
+
+def test_real_frame_asset_says_its_depth_scale_is_nominal(tmp_path):
+    """The transformed map's metres rest on the test's assumed rig: the file says so, with those
+    numbers, and reads back with them."""
+    _, paths = real_frame(tmp_path / "lib", half=200)
+    kind, basis = depth_scale_mark(paths[0])
+    assert kind == "nominal"
+    width = cv2.imread(str(SHARED / "rgb" / "01.jpg")).shape[1]
+    f = width / 2 / np.tan(np.radians(NOMINAL["hfov_deg"] / 2))          # the nominal rig's focal length
+    want = {"baseline_m": NOMINAL["baseline"], "height_m": NOMINAL["height_m"],
+            "pitch_down_deg": NOMINAL["pitch_down_deg"], "units_per_px": NOMINAL["units_per_px"], "fx_px": f}
+    assert {k: basis[k] for k in want} == pytest.approx(want)
+    back = read_defect_asset(paths[0]).params["depth_scale"]
+    assert back["kind"] == "nominal" and back["units_per_px"] == NOMINAL["units_per_px"]
+
+def test_metric_parametric_and_photo_assets_claim_no_nominal_scale(bowl, tmp_path):
+    import dataclasses
+
+    import roadtwin_defects
+    from photo_scene import CLASSES, SURVEY, render_photo, save_pair
+    from roadtwin_core import PluginManager
+    from roadtwin_core.usd import write_defect_asset
+    from roadtwin_photo import PhotoDefects
+
+    _, _, stereo_paths = bowl                       # metric: K and baseline of the synthetic scene
+    pm = PluginManager(load_entry_points=False)
+    pm.register(roadtwin_defects, name="defects")
+    t = pm.registry("defect_types")["pothole"]
+    parametric = write_defect_asset(t.generate(dataclasses.replace(t.Params()), np.random.default_rng(0), "bowl_p"),
+                                    tmp_path / "bowl_p.usda")
+    image, label = render_photo(SURVEY)
+    img = save_pair(tmp_path / "photos", "frame", image, label)
+    photo = PhotoDefects()
+    res = photo.run({"images": [img], "labels": tmp_path / "photos/labels", "classes": CLASSES, "rig": SURVEY,
+                     "license": "CC0"})
+    photo_paths = photo.write(res, tmp_path / "photo_lib")
+    assert stereo_paths and photo_paths
+    for asset in [*stereo_paths, parametric, *photo_paths]:
+        assert depth_scale_mark(asset) == (None, {}), asset
+        assert "depth_scale" not in read_defect_asset(asset).params
+
+def test_depth_scale_that_is_not_a_mark_is_one_clear_error(bowl):
+    from roadtwin_core import RoadtwinError
+
+    sc, _, _ = bowl
+    for bad, says in (("nominal", "must be a dict with a string 'kind'"),
+                      ({"kind": "nominal", "baseline_m": float("nan")}, "'baseline_m' must be a string or a finite")):
+        with pytest.raises(RoadtwinError, match=says):
+            rs.StereoDefects().run({"disparity": sc.disparity(0.1, seed=2), "K": sc.K, "baseline": sc.baseline,
+                                    "depth_scale": bad})
+
+def test_writer_refuses_a_mark_without_a_kind_and_writes_nothing(bowl, tmp_path):
+    from dataclasses import replace
+
+    from roadtwin_core import RoadtwinError
+    from roadtwin_core.usd import write_defect_asset
+
+    _, r, _ = bowl
+    model = replace(r.models[0], params={**r.models[0].params, "depth_scale": {"baseline_m": 0.12}})
+    with pytest.raises(RoadtwinError, match=r"params\['depth_scale'\] must be a dict with a string 'kind'"):
+        write_defect_asset(model, tmp_path / "bad.usda")
+    assert list(tmp_path.iterdir()) == []
 
 def test_same_inputs_same_bytes(tmp_path):
     real_frame(tmp_path / "a", half=200)
@@ -240,7 +316,9 @@ def test_real_frame_asset_in_the_sample_town(tmp_path):
                                       NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])
     st = rs.StereoDefects()
     r = st.run({"disparity": disp, "K": K, "baseline": NOMINAL["baseline"], "rgb": SHARED / "rgb" / "01.jpg",
-                "source": str(SHARED / "disp_tg" / "01.png")})
+                "source": str(SHARED / "disp_tg" / "01.png"),
+                "depth_scale": nominal_depth_scale(K, NOMINAL["baseline"], NOMINAL["height_m"],
+                                                   NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])})
     (asset,) = st.write(r, tmp_path / "lib")
     assert "license: MIT License" in read_defect_asset(asset).source
     res = CliRunner().invoke(app, ["compose", str(ROOT / "stages" / "town.usda"), "--library", str(tmp_path / "lib"),
