@@ -6,11 +6,13 @@ Registers the reconstructor ``photo_defects`` (produces ``"defects"``), run by
 For each image, its label (``LABELS/<image stem>.png``, one dataset class id per pixel, the same
 size as the image) is split into instances: the 8-connected components of each *defect class*
 (a class the class map fills from a roadtwin defect type: for ``road_defects_br``, crack and
-pothole). Each instance's pixels are back-projected through the rig onto the flat road
-(:mod:`.rectify`), and :mod:`.patch` makes its footprint in metres, an orthographic texture patch
-(albedo with an alpha fade into the road, roughness and normal maps derived from it) and a mesh
-on the footprint (potholes get a depth from a per-type prior with ravelled walls; cracks stay
-flush, their grooves in the normal map). :meth:`PhotoDefects.write` writes one library asset per
+pothole; crack strokes closer than ``join_px`` make one instance). Each instance's pixels are
+back-projected through the rig onto the flat road (:mod:`.rectify`), and :mod:`.patch` makes its
+footprint in metres, an orthographic texture patch (albedo with an alpha fade into the road,
+roughness and normal maps derived from it) and a mesh on the footprint (potholes get a depth from
+a per-type prior with ravelled walls; cracks stay flush, their grooves in the normal map, and
+their mesh is the label's strokes, :mod:`.strokes`: the renderer labels a defect's whole mesh, so
+a crack is labelled as thin as the photo's strokes, not over the area they span). :meth:`PhotoDefects.write` writes one library asset per
 instance (``roadtwin_core.usd.write_defect_asset``: interface + payloaded geometry, read back by
 ``compose --library``) plus the asset's ``primvars:st``, a ``UsdPreviewSurface`` bound to it, its
 three textures under ``textures/`` and ``instances.json``; ``roadtwin:source`` names the frame,
@@ -72,7 +74,13 @@ class PhotoDefectsParams:
                                "so the patch is an albedo like the town's asphalt (asphalt_worn: 0.12); 0 keeps the "
                                "photo's exposure")
     join_px: int = field(9, lo=0, hi=101, doc="crack labels: strokes closer than this (px, at the photo's size) "
-                         "join into one crack area (morphological closing) before instances are split")
+                         "make one instance (morphological closing) before instances are split")
+    crack_strokes: bool = field(True, doc="a crack asset's mesh, and so its rendered label, is the label's strokes "
+                                "(joined by bridges, holes slit open: strokes.py), as thin as the real labels; "
+                                "false: the area the closed strokes span, holes filled, plus the fade band (labels "
+                                "about twice as wide as real ones)")
+    stroke_gap_m: float = field(0.01, lo=0.002, hi=0.2, doc="crack strokes: width of the bridges joining an "
+                                "instance's strokes and of the slits opening the road they enclose (m)")
     max_range_m: float = field(80.0, lo=1.0, hi=10000.0, doc="a labelled pixel whose ray meets the road farther "
                                "than this misses the road (error)")
 
@@ -104,10 +112,11 @@ class PhotoResult:
         return [i.model for i in self.instances]
 
 
-def _components(mask: np.ndarray, join_px: int):
+def _components(mask: np.ndarray, join_px: int, strokes: bool = False):
     """The 8-connected components of a class mask: ((x0, y0, width, height, pixels), the
     component's mask inside that box). ``join_px`` > 1 first closes gaps that narrow (crack
-    strokes join into one crack area, not each stroke on its own)."""
+    strokes join into one instance, not each stroke on its own); with ``strokes`` an instance's
+    mask is its labelled pixels only (the closing groups them), else the closed area."""
     import cv2
 
     m = mask.astype(np.uint8)
@@ -116,7 +125,11 @@ def _components(mask: np.ndarray, join_px: int):
     n, comp, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     for c in range(1, n):
         x0, y0, bw, bh, npx = (int(v) for v in stats[c])
-        yield (x0, y0, bw, bh, npx), comp[y0:y0 + bh, x0:x0 + bw] == c
+        sub = comp[y0:y0 + bh, x0:x0 + bw] == c
+        if strokes:
+            sub &= mask[y0:y0 + bh, x0:x0 + bw]
+            npx = int(sub.sum())
+        yield (x0, y0, bw, bh, npx), sub
 
 
 class PhotoDefects:
@@ -129,7 +142,8 @@ class PhotoDefects:
         p, rig, classes, pairs = self._checked(inputs, params)
         pp = PatchParams(texel_m=p.texel_m, fade_m=p.fade_m, edge_m=p.edge_m, max_texels=p.max_texels,
                          depth_ratio=p.depth_ratio, min_depth_m=p.min_depth_m, max_depth_m=p.max_depth_m,
-                         wall_ratio=p.wall_ratio, ravel=p.ravel, road_albedo=p.road_albedo)
+                         wall_ratio=p.wall_ratio, ravel=p.ravel, road_albedo=p.road_albedo,
+                         crack_strokes=p.crack_strokes, stroke_gap_m=p.stroke_gap_m)
         names: set[str] = set()
         out: list[PhotoInstance] = []
         skipped: list[dict] = []
@@ -176,7 +190,9 @@ class PhotoDefects:
         out: list[PhotoInstance] = []
         for cid in sorted(classes):
             cname, dtype = classes[cid]
-            for (x0, y0, bw, bh, npx), sub in _components(label == cid, p.join_px if dtype == "crack" else 0):
+            crack = dtype == "crack"
+            for (x0, y0, bw, bh, npx), sub in _components(label == cid, p.join_px if crack else 0,
+                                                          crack and p.crack_strokes):
                 vs, us = np.nonzero(sub)
                 us, vs = us + x0, vs + y0
                 _, ok = rig.backproject(us.astype(float), vs.astype(float), w, h)

@@ -8,7 +8,10 @@ numpy, OpenCV, scipy, shapely, triangle).
 2. **Mesh outline**: the footprint grown by ``fade_m`` (the band where the texture fades into
    the road), its outer contour (holes filled, the largest part kept), simplified to half a texel
    and resampled every ``edge_m``; a constrained Delaunay triangulation inside (no Steiner points
-   on the outline, so vertices 0..n-1 are the boundary loop at z = 0).
+   on the outline, so vertices 0..n-1 are the boundary loop at z = 0). A crack's outline is its
+   strokes themselves (``crack_strokes``, :mod:`.strokes`: parts bridged, holes slit open), so
+   the rendered label, which covers the whole mesh, is as thin as the photo's label strokes; the
+   texture keeps its photo colour inside and its fade band (outside the mesh, unseen).
 3. **Relief** by type (a prior, not a measurement: a single photo has no depth):
    ``pothole``: depth ``D = clip(depth_ratio * r_eq, min_depth_m, max_depth_m)`` (``r_eq`` the
    footprint's equivalent radius); the wall falls from the label edge over ``wall_ratio * r_eq``
@@ -39,6 +42,7 @@ from shapely.geometry import Polygon
 
 from .rectify import OrthoGrid, PhotoRig, grid_around, rectify
 from .seamless import REC709, linear_to_srgb8, srgb_to_linear
+from .strokes import ccw_ring, min_face_area, stroke_outline
 
 DEEP_TYPES = {"pothole": 1.0, "depression": 0.5}
 RAVELLED = {"pothole"}
@@ -60,6 +64,8 @@ class PatchParams:
     roughness_defect: float = 0.1
     normal_strength: float = 1.0
     road_albedo: float = 0.12     # linear luminance the road around the defect is scaled to (0: keep the photo's)
+    crack_strokes: bool = True    # a crack's mesh (and so its label) = its strokes (strokes.py); False: the area
+    stroke_gap_m: float = 0.01    # width of the bridges between strokes and of the slits opening holes
 
 
 @dataclass
@@ -213,18 +219,30 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     fade = p.fade_m
     alpha = np.where(foot, 1.0, np.clip(1.0 - outside / max(fade, 1e-9), 0.0, 1.0))
 
-    # mesh outline: the footprint grown by the fade band
-    grown = outside <= fade
-    poly = outline(grown, grid, p.edge_m)
-    if poly is None or poly.area < (3 * p.edge_m) ** 2 / 4:
+    # mesh outline: the footprint grown by the fade band; a crack's: its strokes (holes <= 3x3 texels filled)
+    if defect_type in GROOVED and p.crack_strokes:
+        poly = stroke_outline(foot, grid, p.stroke_gap_m, (3 * t) ** 2)
+        min_area = 9 * t * t
+    else:
+        poly = outline(outside <= fade, grid, p.edge_m)
+        min_area = (3 * p.edge_m) ** 2 / 4
+    if poly is None or poly.area < min_area:
         return None
-    loop = resample_ring(poly, p.edge_m)
+    # a flat crack keeps its outline's vertices and gets no interior points: points added on its
+    # edges leave slivers (near-180-degree corners), and quality refinement in strokes a texel or two
+    # wide never ends
+    flat_strokes = defect_type in GROOVED and p.crack_strokes
+    loop = ccw_ring(poly) if flat_strokes else resample_ring(poly, p.edge_m)
     n = len(loop)
     seg = np.column_stack([np.arange(n), (np.arange(n) + 1) % n])
-    tri = triangle.triangulate({"vertices": loop, "segments": seg}, f"pq25a{p.edge_m ** 2 * 0.6:.10f}Y")
+    try:
+        tri = triangle.triangulate({"vertices": loop, "segments": seg},
+                                   "pY" if flat_strokes else f"pq25a{p.edge_m ** 2 * 0.6:.10f}Y")
+    except RuntimeError:                    # Triangle refuses the outline: no asset (skipped, counted)
+        return None
     verts = tri["vertices"]
     faces = tri["triangles"]
-    if not np.allclose(verts[:n], loop):
+    if not np.allclose(verts[:n], loop) or min_face_area(verts - verts.mean(axis=0), faces) <= 1e-9:
         return None
 
     # relief
