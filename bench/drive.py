@@ -8,11 +8,12 @@ at 10 Hz, LiDAR at 10 Hz and IMU at 200 Hz) or a shorter one, extrapolated to th
 
 Prints one JSON line: metres driven, simulated seconds, wall seconds per phase and per sensor,
 samples per sensor, the realtime factor, the process's CPU seconds and the machine's load
-(on a shared machine the wall time is the load's as much as the drive's), and ``per_simulated_s`` / ``extrapolated_1km_s``: the
-physics and sensor walls scale with the simulated time (a 1 km drive at 30 km/h is 120 s),
-loading does not. ``--route auto`` chains the town's lanes; a town shorter than ``--length``
-along one chain drives what there is (the figure says how far it got: the sample town's longest
-chain is 320 m). ``--blur render`` renders every motion-blur sub-frame (the cost before the
+(on a shared machine the wall time is the load's as much as the drive's), and ``per_simulated_s``
+/ ``extrapolated_1km_s``: the physics and sensor walls scale with the simulated time (a 1 km drive
+at 30 km/h is 120 s), loading (the town, the renderer's scene, the LiDAR's BVH:
+``World.prepare``) does not. ``--route auto`` chains the town's lanes; a town shorter than
+``--length`` along one chain drives what there is (the figure says how far it got: the sample
+town's longest chain is 320 m). ``--blur render`` renders every motion-blur sub-frame (the cost before the
 cameras reprojected one). Not a test.
 """
 from __future__ import annotations

@@ -26,8 +26,10 @@ World: Z up, metres. Nothing here knows about USD, files or the plugin manager.
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +41,7 @@ from .textures import (GREY, WRAP_MODES, Textures, build_textures, mip_levels,  
 # nothing here is differentiated: no backward (adjoint) code, which cost most of the compile time
 wp.set_module_options({"enable_backward": False})
 
+CPU_THREADS = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 _LOADED: set = set()     # devices this module's kernels are loaded on
 _LOAD_LOCK = threading.Lock()    # a warm-up thread and the first frame may ask at once
 
@@ -105,6 +108,10 @@ class Faces:
     uv: wp.array(dtype=wp.vec2)
     tangent: wp.array(dtype=wp.vec3)
     bitangent: wp.array(dtype=wp.vec3)
+
+
+SHADOW_OFFSET = wp.constant(2.0e-3)    # shadow rays start this far off the surface (m): no self-hits
+SHADOW_MAX_T = wp.constant(1.0e4)
 
 
 # --------------------------------------------------------------------------------- helpers
@@ -227,8 +234,11 @@ def st_derivatives(F: Faces, f: int, cam: Cam, i: int, j: int, p: wp.vec3, n: wp
 @wp.kernel
 def shade_kernel(mesh: wp.uint64, F: Faces, tex: Textures, cam: Cam, L: Light,
                  dist: wp.array(dtype=float), normal: wp.array(dtype=wp.vec3), face: wp.array(dtype=wp.int32),
-                 rgb: wp.array(dtype=wp.vec3)):
-    tid = wp.tid()
+                 sun_vis: wp.array(dtype=float), first: int, rgb: wp.array(dtype=wp.vec3)):
+    """``sun_vis``: the shadow test's answers per pixel (1 lit, 0 shadowed) from an external
+    caster, or empty: the kernel casts its own shadow rays. ``first``: the launch's first pixel
+    (a CPU frame is shaded in bands of rows, one thread each)."""
+    tid = first + wp.tid()
     i = tid % cam.width
     j = tid // cam.width
     d, scale = cam_ray(cam, i, j)
@@ -268,7 +278,9 @@ def shade_kernel(mesh: wp.uint64, F: Faces, tex: Textures, cam: Cam, L: Light,
     if ndl <= 0.0 or wp.dot(n, L.sun_dir) <= 0.0:
         vis = 0.0
     elif L.shadows != 0:
-        if wp.mesh_query_ray_anyhit(mesh, p + n * 2.0e-3, L.sun_dir, 1.0e4):
+        if sun_vis.shape[0] > 0:
+            vis = sun_vis[tid]
+        elif wp.mesh_query_ray_anyhit(mesh, p + n * SHADOW_OFFSET, L.sun_dir, SHADOW_MAX_T):
             vis = 0.0
     sky_up = (L.sky_zenith + L.sky_horizon) * 0.5
     amb = sky_up * (L.ambient * (0.6 + 0.4 * ns[2]))
@@ -296,6 +308,27 @@ def shade_kernel(mesh: wp.uint64, F: Faces, tex: Textures, cam: Cam, L: Light,
         k = wp.exp(-L.fog_density * t)
         c = c * k + L.fog_rgb * (1.0 - k)
     rgb[tid] = c
+
+
+@wp.kernel
+def sun_rays_kernel(cam: Cam, L: Light, dist: wp.array(dtype=float), normal: wp.array(dtype=wp.vec3),
+                    face: wp.array(dtype=wp.int32), rays: wp.array2d(dtype=float)):
+    """The shade kernel's shadow rays as rows (origin, direction) for an external caster: from
+    each hit whose face looks at the sun, towards it; elsewhere a ray far above the town,
+    pointing up (it meets nothing and costs nothing)."""
+    tid = wp.tid()
+    d, scale = cam_ray(cam, tid % cam.width, tid // cam.width)
+    o = wp.vec3(0.0, 0.0, 1.0e9)
+    s = wp.vec3(0.0, 0.0, 1.0)
+    f = face[tid]
+    if f >= 0:
+        n = cam.rot * normal[tid]
+        if wp.dot(n, L.sun_dir) > 0.0:
+            o = cam.pos + d * dist[tid] + n * SHADOW_OFFSET
+            s = L.sun_dir
+    for k in range(3):
+        rays[tid, k] = o[k]
+        rays[tid, 3 + k] = s[k]
 
 
 @wp.kernel
@@ -533,6 +566,9 @@ class RaycastScene:
         self.background = int(background_class)
         self.max_t = 1.0e4
         self._buffers: dict = {}
+        self._o3d = None
+        self._no_sun_vis = wp.zeros(0, dtype=float, device=self.device)
+        self._pool, self._pool_pid = None, None
 
     def buffer(self, width: int, height: int, slot: int = 0) -> GBuffer:
         key = (width, height, slot)
@@ -547,10 +583,31 @@ class RaycastScene:
         return out
 
     def shade(self, cam: Cam, light: Light, gb: GBuffer) -> GBuffer:
-        wp.launch(shade_kernel, dim=cam.width * cam.height, device=self.device,
-                  inputs=[self.mesh.id, self.faces, self.textures, cam, light, gb.dist, gb.normal, gb.face],
-                  outputs=[gb.rgb])
+        sun_vis = self._no_sun_vis
+        if self._o3d is not None and light.shadows:
+            sun_vis = self.sun_visibility_open3d(cam, light, gb)
+        inputs = [self.mesh.id, self.faces, self.textures, cam, light, gb.dist, gb.normal, gb.face, sun_vis]
+        self._launch_bands(shade_kernel, cam, inputs, [gb.rgb])
         return gb
+
+    def _launch_bands(self, kernel, cam: Cam, inputs: list, outputs: list) -> None:
+        """Launch a per-pixel ``kernel`` (its last input: the launch's first pixel) over the frame:
+        once on a GPU; on a CPU, where warp runs a launch on one thread, in bands of rows, 4 per
+        core (the road's rows below the horizon cost more than the sky's), on a thread pool
+        (warp's CPU launches release the GIL). Each pixel is shaded by the same code either way:
+        the same bytes."""
+        n = cam.width * cam.height
+        if self.device.is_cuda or CPU_THREADS == 1:
+            wp.launch(kernel, dim=n, device=self.device, inputs=inputs + [0], outputs=outputs)
+            return
+        if self._pool is None or self._pool_pid != os.getpid():      # a forked child has no pool threads
+            self._pool, self._pool_pid = ThreadPoolExecutor(CPU_THREADS, thread_name_prefix="warp-cpu"), os.getpid()
+        rows = np.linspace(0, cam.height, min(cam.height, 4 * CPU_THREADS) + 1).astype(int)
+        jobs = [self._pool.submit(wp.launch, kernel, dim=int(b - a) * cam.width, device=self.device,
+                                  inputs=inputs + [int(a) * cam.width], outputs=outputs)
+                for a, b in zip(rows[:-1], rows[1:]) if b > a]
+        for job in jobs:
+            job.result()
 
     def stereo(self, cam: Cam, right_pos, baseline: float, gb: GBuffer) -> GBuffer:
         wp.launch(occlusion_kernel, dim=cam.width * cam.height, device=self.device,
@@ -576,8 +633,8 @@ class RaycastScene:
 
     # ---------------------------------------------------------- open3d (Embree) primary rays
     def enable_open3d(self) -> None:
-        """CPU only: cast primary rays with open3d's RaycastingScene (Embree) instead of warp's
-        scalar CPU BVH traversal; shading, shadows and occlusion stay in warp."""
+        """CPU only: cast primary and shadow rays with open3d's RaycastingScene (Embree) instead
+        of warp's scalar CPU BVH traversal; shading and stereo occlusion stay in warp."""
         import open3d as o3d
 
         if self.device.is_cuda:
@@ -602,3 +659,19 @@ class RaycastScene:
                   inputs=[self.face_class, self.face_inst, cam, self.max_t, self.background, t, prim, nrm],
                   outputs=[out.depth, out.dist, out.normal, out.cls, out.inst, out.face])
         return out
+
+    def sun_visibility_open3d(self, cam: Cam, light: Light, gb: GBuffer) -> wp.array:
+        """1 where the shade kernel's shadow ray (the same ray) reaches the sun, 0 where the town
+        blocks it, Embree answering: the shadow rays were 40 % of a 1280x720 view's shading on
+        warp's one CPU thread (bench/drive.py)."""
+        import open3d as o3d
+
+        n = cam.width * cam.height
+        if getattr(gb, "_sun_rays", None) is None or gb._sun_rays.shape[0] != n:
+            gb._sun_rays = wp.zeros((n, 6), dtype=float, device=self.device)
+        wp.launch(sun_rays_kernel, dim=n, device=self.device, inputs=[cam, light, gb.dist, gb.normal, gb.face],
+                  outputs=[gb._sun_rays])
+        hit = self._o3d.test_occlusions(o3d.core.Tensor.from_numpy(gb._sun_rays.numpy()), tnear=0.0,
+                                        tfar=float(SHADOW_MAX_T)).numpy()
+        gb._sun_vis = np.logical_not(hit).astype(np.float32)          # kept alive while the kernel reads it
+        return wp.array(gb._sun_vis, dtype=float, device=self.device, copy=False)

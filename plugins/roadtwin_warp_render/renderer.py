@@ -4,9 +4,9 @@ All ray casting and shading runs in the kernels of ``raycast.py`` (numpy + warp)
 surface looks like comes from the stage (``RenderMesh.materials``: the bound UsdPreviewSurface
 materials and their textures), never from code here. On a CPU
 device the primary (G-buffer) rays may instead go through open3d's RaycastingScene (Embree),
-which is about twice as fast as warp's scalar CPU traversal; shading, shadows and stereo
-occlusion stay in warp either way (``backend``: auto = open3d on CPU when installed, warp
-otherwise). The town is shifted to a local origin before it goes to float32 device memory, so
+which is about twice as fast as warp's scalar CPU traversal, and so do the sun's shadow rays
+then (the same rays, Embree's answers); shading and stereo occlusion stay in warp either way
+(``backend``: auto = open3d on CPU when installed, warp otherwise). The town is shifted to a local origin before it goes to float32 device memory, so
 geo-referenced coordinates keep millimetre precision. warp is imported on first use, so listing
 plugins does not load it.
 """

@@ -48,7 +48,9 @@ class Textures:
 def wrap_index(i: int, n: int, mode: int) -> int:
     """Texel index ``i`` folded into [0, n): 0 repeat, 1 clamp, 2 mirror."""
     r = int(0)
-    if mode == 1:
+    if i >= 0 and i < n:
+        r = i                       # inside: every mode leaves it (and no integer division, the filter's cost)
+    elif mode == 1:
         r = wp.clamp(i, 0, n - 1)
     elif mode == 2:
         p = ((i % (2 * n)) + 2 * n) % (2 * n)

@@ -192,7 +192,10 @@ def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None,
     Returns the summary plus ``timings_s``, ``events`` and the ``trajectory``."""
     progress = progress or (lambda msg: None)
     ctx = prepare_drive(stage, opt, pm, loaded)
-    timings = {"load_s": ctx["load_s"]}
+    t0 = time.perf_counter()
+    ctx["world"].prepare(render=any(s.message in ("image", "stereo") for s in ctx["sensors"]),
+                         cast=any(s.message == "points" for s in ctx["sensors"]))
+    timings = {"load_s": ctx["load_s"] + time.perf_counter() - t0}
     t0 = time.perf_counter()
     road = crop_mesh(ctx["road"], ctx["route"].xy)
     traj = drive_vehicle(ctx["backend"], road, ctx["vehicle"], ctx["route"], ctx["profile"], ctx["sim"],

@@ -56,6 +56,16 @@ class World:
         hit = self._mesh_cast(np.array([[xy[0], xy[1], top]]), np.array([[0.0, 0.0, -1.0]]))
         return top - float(hit[0][0]) if np.isfinite(hit[0][0]) else 0.0
 
+    def prepare(self, render: bool, cast: bool) -> None:
+        """Build now what the first frame (``render``: the renderer's scene, its BVH and textures)
+        and the first LiDAR scan (``cast``: the ray caster's BVH) would: once a stage, so that it
+        counts as loading, not as the first sample (a short drive's sensor time, extrapolated
+        to a long one, would carry it a hundred times)."""
+        if render and self.renderer is not None and self._prepared is None:
+            self._prepared = self.renderer.prepare(self.mesh, self.render_params)
+        if cast and self._rays is None:
+            self._rays = self._ray_caster()
+
     # cameras -------------------------------------------------------------------------------
     def render(self, cameras):
         if self._prepared is None:
