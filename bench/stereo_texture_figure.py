@@ -27,7 +27,7 @@ import triangle
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "plugins")]
 import roadtwin_stereo as rs  # noqa: E402
-from roadtwin_stereo.texture import disparity_from_transformed  # noqa: E402
+from roadtwin_stereo.texture import disparity_from_transformed, nominal_depth_scale  # noqa: E402
 
 from roadtwin_core import ComposeRules, RoadSegment, TownLayout  # noqa: E402
 from roadtwin_core.usd import read_defect_asset, write_layout  # noqa: E402
@@ -47,7 +47,9 @@ def reconstruct(frame: str, lib: Path) -> tuple[np.ndarray, list[Path]]:
                                       NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])
     st = rs.StereoDefects()
     r = st.run({"disparity": disp, "K": K, "baseline": NOMINAL["baseline"], "rgb": DATA / "rgb" / f"{frame}.jpg",
-                "source": str(DATA / "disp_tg" / f"{frame}.png")})
+                "source": str(DATA / "disp_tg" / f"{frame}.png"),
+                "depth_scale": nominal_depth_scale(K, NOMINAL["baseline"], NOMINAL["height_m"],
+                                                   NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])})
     paths = st.write(r, lib / frame)
     rgb = cv2.imread(str(DATA / "rgb" / f"{frame}.jpg"))
     vs, us = np.nonzero(r.labels)
