@@ -53,8 +53,8 @@ class Scene:
 
 
 # Dense defects (the real train labels hold 1.22 % pothole and 1.14 % crack pixels at 512x320,
-# bench/label_stats.py; an earlier "0.27 % / 0.79 %" here was not the train frames': 0.27 % is near
-# val's pothole share; docs/realism/ablation/README.md): the highway is ~2.5 km of two lanes.
+# bench/label_stats.py; an earlier "0.27 % / 0.79 %" here were the shares of 8 val frames (the
+# real-vs-synthetic figure's), not the train split's; docs/realism/ablation/README.md): the highway is ~2.5 km of two lanes.
 SCENES = (
     Scene("highway_a", "stages/highway.usda", 11, 1200),
     Scene("highway_b", "stages/highway.usda", 12, 1500, surface="iso8608:C:0.2"),
