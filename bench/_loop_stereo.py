@@ -180,3 +180,17 @@ def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tu
     if cache is not None and fresh.keys() != stored.keys():
         np.savez(cache, **fresh)
     return [_summary(a["rows"], a["det"], a["false"], frames, a["per_frame"]) for a in acc]
+
+
+def add_kept_map_args(ap, root: Path, cases: str, border_px: int) -> None:
+    """The options of the scripts that read the loop's kept disparity maps on the tuning cases
+    (bench/loop_missed.py, bench/loop_false_detections.py): where, which cases, which map, and
+    the detector's border and region rule."""
+    from roadtwin_stereo import StereoDefects
+
+    ap.add_argument("--out", type=Path, default=root / "out" / "loop_tune")
+    ap.add_argument("--cases", default=cases)
+    ap.add_argument("--tag", default="lk6x2_reject1.3x2", help="the kept map: OUT/CASE/disparity_1280x720_TAG.npz")
+    ap.add_argument("--border-px", type=int, default=border_px, help="StereoDefectsParams.border_px")
+    ap.add_argument("--k-region", type=float, default=StereoDefects.Params().k_region,
+                    help="StereoDefectsParams.k_region (0 = the peak rule alone, the detector before)")

@@ -31,7 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "plugins"), str(ROOT / "bench")]
 from _loop_data import PAVED, Bag  # noqa: E402
-from _loop_stereo import ROI_M, _crop, road_mask, road_rows  # noqa: E402
+from _loop_stereo import ROI_M, _crop, add_kept_map_args, road_mask, road_rows  # noqa: E402
 
 CAUSES = ("border", "defect_neighbour", "occlusion_edge", "lane_marking", "shadow_edge", "low_texture", "other")
 BORDER_PX, NEAR_DEFECT_PX, EDGE_PX, MARK_PX = 3, 10, 6, 3
@@ -104,12 +104,7 @@ def main() -> None:
     from roadtwin_stereo import StereoDefects
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "out" / "loop_tune")
-    ap.add_argument("--cases", default="tune_highway_D_seed23,tune_town_seed3")
-    ap.add_argument("--tag", default="lk6x2_reject1.3x2", help="the kept map: OUT/CASE/disparity_1280x720_TAG.npz")
-    ap.add_argument("--border-px", type=int, default=0, help="StereoDefectsParams.border_px")
-    ap.add_argument("--k-region", type=float, default=StereoDefects.Params().k_region,
-                    help="StereoDefectsParams.k_region (0 = the peak rule alone; bench/loop_missed.py)")
+    add_kept_map_args(ap, ROOT, "tune_highway_D_seed23,tune_town_seed3", border_px=0)
     ap.add_argument("--exclude-marking", action="store_true", help="road mask without lane-marking pixels")
     args = ap.parse_args()
     rec = StereoDefects()

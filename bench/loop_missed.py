@@ -42,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "plugins"), str(ROOT / "bench")]
 from _loop_data import Bag, load_truth  # noqa: E402
-from _loop_stereo import MIN_PX, NEAR_M, ROI_M, _crop, road_mask, road_rows  # noqa: E402
+from _loop_stereo import MIN_PX, NEAR_M, ROI_M, _crop, add_kept_map_args, road_mask, road_rows  # noqa: E402
 
 SHADOW_LUM, LOW_TEX, MERGE_SHARE, RING_PX = 0.6, 0.5, 0.2, (4, 20)
 BLUR_PX = 2.0  # SegmentParams.blur_px
@@ -226,12 +226,7 @@ def main() -> None:
     from roadtwin_stereo import StereoDefects
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "out" / "loop_tune")
-    ap.add_argument("--cases", default="tune_highway_D_seed23")
-    ap.add_argument("--tag", default="lk6x2_reject1.3x2", help="the kept map: OUT/CASE/disparity_1280x720_TAG.npz")
-    ap.add_argument("--border-px", type=int, default=3, help="StereoDefectsParams.border_px (bench/loop.py's 3)")
-    ap.add_argument("--k-region", type=float, default=StereoDefects.Params().k_region,
-                    help="StereoDefectsParams.k_region (0 = the peak rule alone, the detector before)")
+    add_kept_map_args(ap, ROOT, "tune_highway_D_seed23", border_px=3)     # bench/loop.py's border
     ap.add_argument("--all", action="store_true", help="list found views too")
     ap.add_argument("--json", type=Path, help="write the rows here")
     args = ap.parse_args()
