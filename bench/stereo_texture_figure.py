@@ -27,29 +27,20 @@ import triangle
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "plugins")]
 import roadtwin_stereo as rs  # noqa: E402
-from roadtwin_stereo.texture import disparity_from_transformed, nominal_depth_scale  # noqa: E402
+from roadtwin_stereo.texture import nominal_inputs  # noqa: E402
 
 from roadtwin_core import ComposeRules, RoadSegment, TownLayout  # noqa: E402
 from roadtwin_core.usd import read_defect_asset, write_layout  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "stereo_pothole"
-NOMINAL = {"hfov_deg": 90.0, "baseline": 0.12, "height_m": 1.0, "pitch_down_deg": 60.0, "units_per_px": 10000.0}
 TILE = 300   # px per panel
 
 
 def reconstruct(frame: str, lib: Path) -> tuple[np.ndarray, list[Path]]:
     """One frame's textured assets in ``lib/<frame>``; returns the rgb crop around its pothole."""
-    dt = rs.load_disparity(DATA / "disp_tg" / f"{frame}.png")
-    h, w = dt.shape
-    f = w / 2 / np.tan(np.radians(NOMINAL["hfov_deg"] / 2))
-    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
-    disp = disparity_from_transformed(np.nan_to_num(dt), K, NOMINAL["baseline"], NOMINAL["height_m"],
-                                      NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])
     st = rs.StereoDefects()
-    r = st.run({"disparity": disp, "K": K, "baseline": NOMINAL["baseline"], "rgb": DATA / "rgb" / f"{frame}.jpg",
-                "source": str(DATA / "disp_tg" / f"{frame}.png"),
-                "depth_scale": nominal_depth_scale(K, NOMINAL["baseline"], NOMINAL["height_m"],
-                                                   NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])})
+    r = st.run({**nominal_inputs(rs.load_disparity(DATA / "disp_tg" / f"{frame}.png")),
+                "rgb": DATA / "rgb" / f"{frame}.jpg", "source": str(DATA / "disp_tg" / f"{frame}.png")})
     paths = st.write(r, lib / frame)
     rgb = cv2.imread(str(DATA / "rgb" / f"{frame}.jpg"))
     vs, us = np.nonzero(r.labels)

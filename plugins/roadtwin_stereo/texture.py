@@ -19,7 +19,8 @@ vertices' st is exactly affine in XY (``DefectLook.fit``), which is what a decal
 - :func:`disparity_from_transformed`: a raw disparity back from a normalised transformed map
   (Fan et al.'s ``disp_tg``) and a *nominal* rig, so those frames can be meshed at all;
   :func:`nominal_depth_scale` is the mark its models carry (``inputs["depth_scale"]``: the asset
-  says ``roadtwin:depthScale = "nominal"`` with the numbers used, docs/architecture.md).
+  says ``roadtwin:depthScale = "nominal"`` with the numbers used, docs/architecture.md);
+  :func:`nominal_inputs` gives both, and K, for one map through :data:`NOMINAL_RIG`.
 """
 from __future__ import annotations
 
@@ -193,6 +194,25 @@ def nominal_depth_scale(K: np.ndarray, baseline_m: float, height_m: float, pitch
     return {"kind": "nominal", "basis": "transformed disparity (min-max normalised) through an assumed rig",
             "fx_px": float(np.asarray(K, np.float64)[0, 0]), "baseline_m": float(baseline_m),
             "height_m": float(height_m), "pitch_down_deg": float(pitch_down_deg), "units_per_px": float(units_per_px)}
+
+
+# Fan et al.'s stereo pothole frames through roadtwin's `inspection` rig preset (ZED-class 0.12 m
+# baseline, 90 deg, 1.0 m up, 60 deg down; nominal) and 10,000 map units per disparity px (nominal:
+# the normalised maps lost the true scale; this puts their potholes 3-7 cm deep).
+NOMINAL_RIG = {"hfov_deg": 90.0, "baseline_m": 0.12, "height_m": 1.0, "pitch_down_deg": 60.0, "units_per_px": 10000.0}
+
+
+def nominal_inputs(transformed: np.ndarray, rig: dict[str, float] = NOMINAL_RIG) -> dict[str, Any]:
+    """A transformed (normalised) map as the reconstructor's metric inputs through a nominal rig:
+    ``disparity`` (:func:`disparity_from_transformed`), ``K`` (pinhole, centred, ``hfov_deg``),
+    ``baseline`` and the ``depth_scale`` mark its assets carry (:func:`nominal_depth_scale`)."""
+    t = np.nan_to_num(np.asarray(transformed, np.float64))
+    h, w = t.shape
+    f = w / 2 / np.tan(np.radians(rig["hfov_deg"] / 2))
+    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
+    numbers = (rig["baseline_m"], rig["height_m"], rig["pitch_down_deg"], rig["units_per_px"])
+    return {"disparity": disparity_from_transformed(t, K, *numbers), "K": K, "baseline": rig["baseline_m"],
+            "depth_scale": nominal_depth_scale(K, *numbers)}
 
 
 def check_depth_scale(mark: Any) -> dict[str, Any] | None:

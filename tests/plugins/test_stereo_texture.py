@@ -31,13 +31,14 @@ from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
 ROOT = Path(__file__).resolve().parents[2]
 import roadtwin_stereo as rs
 from roadtwin_stereo.synthetic import BowlScene
-from roadtwin_stereo.texture import disparity_from_transformed, license_for, nominal_depth_scale
+from roadtwin_stereo.texture import license_for, nominal_inputs
 
 SHARED = ROOT.parent / "shared" / "data" / "stereo_pothole"
 DISC_R = 0.12            # the dark disc painted in the bowl (m)
 # Fan et al.'s frames through the `inspection` rig preset (roadtwin_core/render/cameras.py: ZED-class
 # 0.12 m baseline, 90 deg, 1.0 m up, 60 deg down; nominal) and 10,000 map units per disparity px
-# (nominal: the normalised maps lost the true scale; this puts the potholes 3-7 cm deep).
+# (nominal: the normalised maps lost the true scale; this puts the potholes 3-7 cm deep): the test's own
+# numbers, what the assets' depthScale mark must hold.
 NOMINAL = {"hfov_deg": 90.0, "baseline": 0.12, "height_m": 1.0, "pitch_down_deg": 60.0, "units_per_px": 10000.0}
 
 def paint(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -127,12 +128,8 @@ def real_frame(tmp: Path, name: str = "01", half: int = 300) -> tuple[object, li
     nominal rig, written to ``tmp``."""
     if not (SHARED / "rgb" / f"{name}.jpg").exists():
         pytest.skip(f"{SHARED} not present")
-    dt = rs.load_disparity(SHARED / "disp_tg" / f"{name}.png")
-    h, w = dt.shape
-    f = w / 2 / np.tan(np.radians(NOMINAL["hfov_deg"] / 2))
-    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
-    disp = disparity_from_transformed(np.nan_to_num(dt), K, NOMINAL["baseline"], NOMINAL["height_m"],
-                                      NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])
+    nominal = nominal_inputs(rs.load_disparity(SHARED / "disp_tg" / f"{name}.png"))
+    disp, K = nominal["disparity"], nominal["K"]
     vs, us = np.nonzero(rs.load_label(SHARED / "label" / f"{name}.png"))
     u0, v0 = max(int(us.mean()) - half, 0), max(int(vs.mean()) - half, 0)
     crop = np.s_[v0:v0 + 2 * half, u0:u0 + 2 * half]
@@ -141,11 +138,8 @@ def real_frame(tmp: Path, name: str = "01", half: int = 300) -> tuple[object, li
     Kc[1, 2] -= v0
     rgb = cv2.cvtColor(cv2.imread(str(SHARED / "rgb" / f"{name}.jpg")), cv2.COLOR_BGR2RGB)[crop]
     st = rs.StereoDefects()
-    scale = nominal_depth_scale(K, NOMINAL["baseline"], NOMINAL["height_m"], NOMINAL["pitch_down_deg"],
-                                NOMINAL["units_per_px"])
-    r = st.run({"disparity": disp[crop], "K": Kc, "baseline": NOMINAL["baseline"], "rgb": rgb,
-                "source": str(SHARED / "rgb" / f"{name}.jpg"), "license": license_for(SHARED / "rgb" / f"{name}.jpg"),
-                "depth_scale": scale})
+    r = st.run({**nominal, "disparity": disp[crop], "K": Kc, "rgb": rgb,
+                "source": str(SHARED / "rgb" / f"{name}.jpg"), "license": license_for(SHARED / "rgb" / f"{name}.jpg")})
     return r, st.write(r, tmp)
 
 def test_real_frame_asset_validates_and_names_frame_and_license(tmp_path):
@@ -308,17 +302,9 @@ def test_real_frame_asset_in_the_sample_town(tmp_path):
 
     if not (SHARED / "rgb" / "01.jpg").exists():
         pytest.skip(f"{SHARED} not present")
-    dt = rs.load_disparity(SHARED / "disp_tg" / "01.png")
-    h, w = dt.shape
-    f = w / 2 / np.tan(np.radians(NOMINAL["hfov_deg"] / 2))
-    K = np.array([[f, 0, (w - 1) / 2], [0, f, (h - 1) / 2], [0, 0, 1.0]])
-    disp = disparity_from_transformed(np.nan_to_num(dt), K, NOMINAL["baseline"], NOMINAL["height_m"],
-                                      NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])
     st = rs.StereoDefects()
-    r = st.run({"disparity": disp, "K": K, "baseline": NOMINAL["baseline"], "rgb": SHARED / "rgb" / "01.jpg",
-                "source": str(SHARED / "disp_tg" / "01.png"),
-                "depth_scale": nominal_depth_scale(K, NOMINAL["baseline"], NOMINAL["height_m"],
-                                                   NOMINAL["pitch_down_deg"], NOMINAL["units_per_px"])})
+    r = st.run({**nominal_inputs(rs.load_disparity(SHARED / "disp_tg" / "01.png")), "rgb": SHARED / "rgb" / "01.jpg",
+                "source": str(SHARED / "disp_tg" / "01.png")})
     (asset,) = st.write(r, tmp_path / "lib")
     assert "license: MIT License" in read_defect_asset(asset).source
     res = CliRunner().invoke(app, ["compose", str(ROOT / "stages" / "town.usda"), "--library", str(tmp_path / "lib"),
