@@ -220,7 +220,8 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     alpha = np.where(foot, 1.0, np.clip(1.0 - outside / max(fade, 1e-9), 0.0, 1.0))
 
     # mesh outline: the footprint grown by the fade band; a crack's: its strokes (holes <= 3x3 texels filled)
-    if defect_type in GROOVED and p.crack_strokes:
+    flat_strokes = defect_type in GROOVED and p.crack_strokes
+    if flat_strokes:
         poly = stroke_outline(foot, grid, p.stroke_gap_m, (3 * t) ** 2)
         min_area = 9 * t * t
     else:
@@ -231,7 +232,6 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     # a flat crack keeps its outline's vertices and gets no interior points: points added on its
     # edges leave slivers (near-180-degree corners), and quality refinement in strokes a texel or two
     # wide never ends
-    flat_strokes = defect_type in GROOVED and p.crack_strokes
     loop = ccw_ring(poly) if flat_strokes else resample_ring(poly, p.edge_m)
     n = len(loop)
     seg = np.column_stack([np.arange(n), (np.arange(n) + 1) % n])

@@ -216,7 +216,7 @@ def mean_noise(z: np.ndarray, road: np.ndarray) -> tuple[np.ndarray, np.ndarray]
             break
         m = tot[full] / cnt[full]
         logn.append(np.log(b * b))
-        logs.append(np.log(MAD_TO_SIGMA * np.median(np.abs(m - np.median(m))) + 1e-12))
+        logs.append(np.log(robust_sigma(m)))
     return np.asarray(logn), np.asarray(logs)
 
 

@@ -69,9 +69,7 @@ from scipy import ndimage as ndi
 
 from roadtwin_core import RoadtwinError
 
-from .road_model import deep_regions, local_road_residual, region_significance
-
-MAD_TO_SIGMA = 1.4826  # MAD of a Gaussian x this = its standard deviation
+from .road_model import deep_regions, local_road_residual, region_significance, robust_sigma
 
 
 @dataclass
@@ -146,10 +144,6 @@ def _poly_design(u: np.ndarray, v: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, axis=-1)
 
 
-def _robust_sigma(x: np.ndarray) -> float:
-    return MAD_TO_SIGMA * float(np.median(np.abs(x - np.median(x)))) + 1e-12
-
-
 def fit_road_surface(d: np.ndarray, degree: int = 2, step: int = 4, iters: int = 10,
                      return_inliers: bool = False):
     """Robust polynomial surface r(u, v) over the valid pixels of ``d`` (NaN = invalid).
@@ -174,7 +168,7 @@ def fit_road_surface(d: np.ndarray, degree: int = 2, step: int = 4, iters: int =
     for _ in range(iters):
         coef, *_ = np.linalg.lstsq(a[inl], zm[inl], rcond=None)
         r = zm - a @ coef
-        s = _robust_sigma(r[inl])
+        s = robust_sigma(r[inl])
         new = np.abs(r - np.median(r[inl])) < 3 * s
         if new.sum() < a.shape[1] * 3 or np.array_equal(new, inl):
             break
@@ -215,7 +209,7 @@ def road_residual(disp: np.ndarray, params: SegmentParams | None = None, with_si
         res0 = np.where(den > 0.2, num / np.maximum(den, 1e-9), 0.0)
     ref = res0[road] if road.sum() > 100 else res0[valid]
     med = float(np.median(ref))
-    sigma = _robust_sigma(ref)
+    sigma = robust_sigma(ref)
     z = np.where(valid, (res0 - med) / sigma, 0.0)
     if p.road_model == "local":
         z, _, sigma = local_road_residual(e, valid, deep_regions(z, valid, p.k_grow, p.mask_k), k_grow=p.k_grow,
