@@ -13,10 +13,11 @@ import pytest
 import triangle
 from pxr import Sdf, Usd, UsdShade, UsdUtils
 
-from roadtwin_core import ComposeRules, DefectLook, DefectModel, RoadSegment, TownLayout
+from lane_layout import write_lane_layout
+from roadtwin_core import DefectLook, DefectModel
 from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.render.scene import build_render_mesh
-from roadtwin_core.usd import load_town, validate_stage, write_defect_asset, write_layout
+from roadtwin_core.usd import load_town, validate_stage, write_defect_asset
 
 COLOURS = {"scan0": (40, 90, 200), "scan1": (210, 60, 30)}   # sRGB, one flat diffuse per model
 
@@ -54,12 +55,7 @@ def town(tmp_path_factory):
         model = _textured_bowl(name, radius, sources)
         write_defect_asset(model, lib / f"{name}.usda")
         reference.update({(f"lib_{name}", role): open(path, "rb").read() for role, path in model.look.textures.items()})
-    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
-    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
-    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
-    layout = tmp / "road.usda"
-    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=12, seed=2, surface="flat",
-                                                          type_weights={"pothole": 1.0}, models_per_type=1)), layout)
+    layout = write_lane_layout(tmp / "road.usda", 12, 2)
     out = compose(layout, tmp / "town", library_dir=lib, preview=False, executor="serial", props="none").outdir
     shutil.rmtree(lib)
     shutil.rmtree(sources)

@@ -6,9 +6,10 @@ import pytest
 import triangle
 from pxr import Usd
 
-from roadtwin_core import ComposeRules, DefectModel, RoadSegment, RoadtwinError, TownLayout
+from lane_layout import write_lane_layout
+from roadtwin_core import DefectModel, RoadtwinError
 from roadtwin_core.apps.compose.run import compose
-from roadtwin_core.usd import write_defect_asset, write_layout
+from roadtwin_core.usd import write_defect_asset
 
 
 def _bowl(name: str, radius: float, depth: float) -> DefectModel:
@@ -25,12 +26,7 @@ def _bowl(name: str, radius: float, depth: float) -> DefectModel:
 
 @pytest.fixture
 def layout(tmp_path):
-    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
-    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
-    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
-    path = tmp_path / "road.usda"
-    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=12, seed=2, surface="flat",
-                                                          type_weights={"crack": 1.0}, models_per_type=1)), path)
+    path = write_lane_layout(tmp_path / "road.usda", 12, 2, "crack")
     return path
 
 

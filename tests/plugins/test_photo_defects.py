@@ -16,13 +16,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import triangle
 from pxr import Usd, UsdGeom, UsdShade
 
 from photo_scene import CLASSES, SURVEY, ground_texture, render_photo, save_pair
-from roadtwin_core import ComposeRules, RoadSegment, RoadtwinError, TownLayout
+from lane_layout import write_lane_layout
+from roadtwin_core import RoadtwinError
 from roadtwin_core.apps.compose.run import compose
-from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
+from roadtwin_core.usd import read_defect_asset, validate_stage
 from roadtwin_photo import PhotoDefects, PhotoDefectsParams, PhotoRig
 from roadtwin_photo.patch import to_road_albedo
 
@@ -88,12 +88,7 @@ def test_photo_asset_round_trips_and_validates(photo_library):
 
 
 def test_photo_asset_composes_into_a_town_that_validates(photo_library, tmp_path):
-    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
-    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
-    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
-    layout = tmp_path / "road.usda"
-    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=6, seed=3, surface="flat",
-                                                          type_weights={"pothole": 1.0}, models_per_type=1)), layout)
+    layout = write_lane_layout(tmp_path / "road.usda", 6, 3)
     done = compose(layout, tmp_path / "town", library_dir=photo_library, preview=False, executor="serial")
     stage = Usd.Stage.Open(str(done.town))
     models = [p.GetAttribute("roadtwin:defect:model").Get() for p in stage.GetPrimAtPath("/Town/Defects").GetChildren()]
@@ -105,12 +100,7 @@ def test_photo_texture_reaches_the_composed_town(photo_library, tmp_path):
     """Each placed photo defect wears its own texture in the town: a clamped material with the
     library's pixels, bound to its pieces, and st that, at every piece vertex lying on one of the
     asset's own vertices, equals the st the reconstructor authored there."""
-    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
-    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
-    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
-    layout = tmp_path / "road.usda"
-    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=6, seed=3, surface="flat",
-                                                          type_weights={"pothole": 1.0}, models_per_type=1)), layout)
+    layout = write_lane_layout(tmp_path / "road.usda", 6, 3)
     done = compose(layout, tmp_path / "town", library_dir=photo_library, preview=False, executor="serial")
     stage = Usd.Stage.Open(str(done.town))
     checked = 0

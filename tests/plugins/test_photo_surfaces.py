@@ -26,15 +26,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import triangle
 from pxr import Usd, UsdShade
 
 from cli_run import one_line, run_cli
 from photo_scene import SURVEY, H, W, save_pair
-from roadtwin_core import ComposeRules, RoadSegment, RoadtwinError, TownLayout
+from lane_layout import write_lane_layout
+from roadtwin_core import RoadtwinError
 from roadtwin_core.apps.compose.run import compose
 from roadtwin_core.looks import ST_TILE_M
-from roadtwin_core.usd import validate_stage, write_layout
+from roadtwin_core.usd import validate_stage
 from roadtwin_photo.quilting import min_cut_path, quilt_torus
 from roadtwin_photo.surfaces import PhotoSurfaces, PhotoSurfacesParams
 
@@ -183,12 +183,7 @@ def test_back_projection_scale_and_orientation(tmp_path):
 
 
 def _layout(tmp_path: Path) -> Path:
-    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
-    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
-    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
-    layout = tmp_path / "road.usda"
-    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=2, seed=3, surface="flat",
-                                                          type_weights={"pothole": 1.0}, models_per_type=1)), layout)
+    layout = write_lane_layout(tmp_path / "road.usda", 2, 3)
     return layout
 
 

@@ -20,13 +20,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import triangle
 from pxr import Usd, UsdShade
 from scipy.ndimage import map_coordinates
 
-from roadtwin_core import ComposeRules, RoadSegment, TownLayout
+from lane_layout import write_lane_layout
 from roadtwin_core.apps.compose.run import compose
-from roadtwin_core.usd import read_defect_asset, validate_stage, write_layout
+from roadtwin_core.usd import read_defect_asset, validate_stage
 
 ROOT = Path(__file__).resolve().parents[2]
 import roadtwin_stereo as rs
@@ -158,12 +157,7 @@ def test_real_frame_asset_validates_and_names_frame_and_license(tmp_path):
 def test_real_frame_asset_composes_with_its_decal_bound(tmp_path):
     _, paths = real_frame(tmp_path / "lib")
     lib = tmp_path / "lib"
-    poly = np.array([[0, 0], [30, 0], [30, 7], [0, 7]], dtype=float)
-    t = triangle.triangulate({"vertices": poly, "segments": [[0, 1], [1, 2], [2, 3], [3, 0]]}, "p")
-    seg = RoadSegment("lane", "driving", t["vertices"], t["triangles"], np.array([[0, 3.5], [30, 3.5]]))
-    layout = tmp_path / "road.usda"
-    write_layout(TownLayout("Town", [seg], ComposeRules(defect_count=6, seed=3, surface="flat",
-                                                          type_weights={"pothole": 1.0}, models_per_type=1)), layout)
+    layout = write_lane_layout(tmp_path / "road.usda", 6, 3)
     done = compose(layout, tmp_path / "town", library_dir=lib, preview=False, executor="serial")
     assert not [f for f in validate_stage(done.town) if f.severity == "Error"]
     stage = Usd.Stage.Open(str(done.town))
