@@ -111,12 +111,36 @@ def cross_validate(fraction: float, real: Frames, synth: Frames, cfg: Config, po
     if path is not None and path.exists():
         return json.loads(path.read_text())
     parts = [cv_point(fraction, p, k, real, synth, cfg, cv_steps, seed, device) for p in points]
-    record = choose(fraction, parts, metric)
+    record = {**choose(fraction, parts, metric), "synthetic": synth.folder}
     if path is not None:
         write_json(path, record)
     log(f"  mixed arm at {round(fraction * 100):g} %: chose ratio {record['chosen']['ratio']:g}, {record['chosen']['schedule']} "
         f"({metric} by {k}-fold CV on train {record['by']}s)")
     return record
+
+
+def choose_set(records: list[dict], metric: str | None = None) -> dict:
+    """Which synthetic set the mixed arm uses: the one whose own CV choice scores best on the
+    held-out train roads (records of ``cross_validate``, one per set, same fraction and folds)."""
+    if not records:
+        raise RoadtwinError("choose-set: no CV records given")
+    for key in ("fraction", "folds", "by", "steps_per_model"):
+        if len({json.dumps(r.get(key)) for r in records}) > 1:
+            raise RoadtwinError(f"choose-set: the CV records differ in {key} "
+                                f"({', '.join(str(r.get(key)) for r in records)}): not comparable")
+    metric = metric or records[0]["metric"]
+    scores = {}
+    for r in records:
+        if "synthetic" not in r:
+            raise RoadtwinError("choose-set: a CV record without its synthetic folder (made before choose-set existed)")
+        best = r["scores"][f"{r['chosen']['ratio']:g}:{r['chosen']['schedule']}"]
+        if metric not in best["table"]:
+            raise RoadtwinError(f"--metric: {metric!r} is not one of {', '.join(best['table'])}")
+        scores[r["synthetic"]] = {"point": r["chosen"], metric: best["table"][metric], "table": best["table"]}
+    chosen = max(scores, key=lambda k: (np.nan_to_num(scores[k][metric], nan=-1.0), -list(scores).index(k)))
+    return {"chosen": chosen, "point": scores[chosen]["point"], "metric": metric, "scores": scores,
+            "fraction": records[0]["fraction"], "folds": records[0]["folds"], "by": records[0]["by"],
+            "chosen_on": "pooled held-out IoU of k-fold CV over the real train frames (never val/test)"}
 
 
 def write_json(path: Path, obj) -> None:

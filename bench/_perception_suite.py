@@ -154,6 +154,7 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
             target = cv_path(out / "shared", f)
             if not target.exists() and all(p.exists() for p in parts):
                 rec = choose(f, [json.loads(p.read_text()) for p in parts], metric)
+                rec["synthetic"] = json.loads(common.read_text()).get("synthetic")
                 write_json(target, rec)
                 log(f"mixed arm at {pct(f)}%: CV chose ratio {rec['chosen']['ratio']:g}, {rec['chosen']['schedule']}")
         elapsed = time.perf_counter() - t0

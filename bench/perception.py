@@ -51,7 +51,7 @@ from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 import _segnet  # noqa: E402
 from _perception_arms import ARMS, LETTER, SYNTHETIC_ARMS, Config, make_model, run_arm, write_run  # noqa: E402
-from _perception_cv import cross_validate, cv_point, grid_points, parse_mix, write_json  # noqa: E402
+from _perception_cv import choose_set, cross_validate, cv_path, cv_point, grid_points, parse_mix, write_json  # noqa: E402
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
 from _perception_report import iou_table, load_runs, markdown, summarize  # noqa: E402
@@ -155,6 +155,10 @@ def one_run(args, ctx, arm, fraction, seed, device, log=print) -> Path:
 def cmd_train(args, log=print) -> list[Path]:
     ctx = prepare(args, log)
     device = _device(args)
+    if args.cv_only:
+        if "mixed" not in ctx["arms"] or args.mix:
+            raise RoadtwinError("--cv-only: cross-validates the mixed arm: give --arms c and no --mix")
+        return [cv_path(ctx["cache"], f) for f in args.fractions if _mix_for(args, ctx, f, device, log)]
     written = []
     for seed in args.seeds:
         for arm in ctx["arms"]:
@@ -176,6 +180,20 @@ def cmd_suite(args, log=print) -> int:
         job.steps = ctx["cfg"].steps if job.spec.get("arm") in ("pretrain", "zeroshot") else steps[job.kind]
     return run_suite(jobs, cv_parts, common, out, args.parallel, args.time_budget, [Path(r) for r in args.reuse],
                      args.cv_metric, log)
+
+
+def cmd_choose_set(records, out: Path, metric=None, log=print) -> dict:
+    recs = []
+    for r in records:
+        try:
+            recs.append(json.loads(Path(r).read_text()))
+        except (OSError, ValueError) as exc:
+            raise RoadtwinError(f"{r}: not a CV record ({exc.__class__.__name__})") from None
+    choice = choose_set(recs, metric)
+    write_json(out, choice)
+    m = choice["metric"]
+    log("  ".join(f"{k}: {100 * v[m]:.1f}" for k, v in choice["scores"].items()) + f"  -> {choice['chosen']} ({m}, CV on train)")
+    return choice
 
 
 def cmd_job(common: str, spec_text: str, log=print) -> None:
@@ -249,6 +267,8 @@ def _run_options(t) -> None:
     t.add_argument("--cv-steps", type=int, default=1000, help="steps of each CV model (default 1000, split P:R)")
     t.add_argument("--cv-metric", default="pothole", help="IoU the CV maximizes (default pothole)")
     t.add_argument("--cv-seed", type=int, default=0)
+    t.add_argument("--cv-only", action="store_true", help="only the mixed arm's CV: OUT/shared/cv_PCT.json per "
+                   "fraction (for choose-set), no run")
     t.add_argument("--out", required=True)
 
 
@@ -274,6 +294,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True)
     r.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples (default 2000, seeded)")
     r.add_argument("--grid-fraction", type=float, default=0.1, help="fraction shown in grid.jpg (default 0.1)")
+    c = sub.add_parser("choose-set", help="the synthetic set the mixed arm uses: best CV score on the train roads")
+    c.add_argument("records", nargs="+", help="OUT/shared/cv_PCT.json of train --cv-only, one per synthetic set")
+    c.add_argument("--metric", default=None, help="IoU compared (default: the records' CV metric)")
+    c.add_argument("--out", required=True, help="JSON written: the chosen folder and every set's score")
     j = sub.add_parser("_job")
     j.add_argument("common")
     j.add_argument("spec")
@@ -291,6 +315,8 @@ def main(argv=None) -> int:
             return 1 if cmd_suite(args) else 0
         elif args.cmd == "_job":
             cmd_job(args.common, args.spec)
+        elif args.cmd == "choose-set":
+            cmd_choose_set(args.records, Path(args.out), args.metric)
         else:
             report(args.results, Path(args.out), args.bootstrap, args.grid_fraction)
     except RoadtwinError as exc:

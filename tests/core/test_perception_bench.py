@@ -286,3 +286,45 @@ def test_zero_shot_with_fda_style_runs_and_a_bad_style_is_one_line(tmp_path, cap
     assert rc == 2
     assert "--style" in _one_line_error(capsys)
     assert not list((tmp_path / "o2").glob("run_*"))
+
+
+def test_choose_set_takes_the_best_held_out_score_and_refuses_mismatched_records(tmp_path, capsys):
+    """Two sets' CV records by hand: set B's own choice pools pothole IoU 2/5 = 0.4 on the held-out
+    roads, A's 1/4 = 0.25 (its other point, 0.3, is not the one its CV chose: not compared)."""
+    bench = _bench()
+
+    def record(folder, chosen, scores):
+        table = lambda v: {"pothole": v, "crack": 0.1, "mIoU": 0.5}  # noqa: E731
+        return {"fraction": 0.1, "folds": 3, "by": "road", "steps_per_model": 1000, "metric": "pothole",
+                "synthetic": folder, "chosen": {"ratio": chosen, "schedule": "constant"},
+                "scores": {f"{r:g}:constant": {"pothole": v, "table": table(v)} for r, v in scores.items()}}
+
+    a = tmp_path / "a.json"
+    b = tmp_path / "b.json"
+    a.write_text(json.dumps(record("/sets/A", 0.25, {0.25: 1 / 4, 0.5: 0.3})))
+    b.write_text(json.dumps(record("/sets/B", 0.5, {0.5: 2 / 5})))
+    assert bench.main(["choose-set", str(a), str(b), "--out", str(tmp_path / "choice.json")]) == 0
+    choice = json.loads((tmp_path / "choice.json").read_text())
+    assert choice["chosen"] == "/sets/B" and choice["point"] == {"ratio": 0.5, "schedule": "constant"}
+    assert choice["scores"]["/sets/A"]["pothole"] == pytest.approx(0.25)
+    assert "-> /sets/B" in capsys.readouterr().out
+    other = record("/sets/C", 0.5, {0.5: 0.9})
+    other["fraction"] = 0.05                                   # another fraction: not comparable
+    (tmp_path / "c.json").write_text(json.dumps(other))
+    assert bench.main(["choose-set", str(a), str(tmp_path / "c.json"), "--out", str(tmp_path / "x.json")]) == 2
+    assert "fraction" in _one_line_error(capsys) and not (tmp_path / "x.json").exists()
+
+
+def test_cv_only_writes_the_choice_naming_its_synthetic_set_and_trains_no_run(tmp_path):
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    out = tmp_path / "o"
+    rc = bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "c", "--fractions", "1",
+                     "--cv-ratios", "0.5", "--cv-schedules", "constant", "--cv-folds", "2", "--cv-steps", "2",
+                     "--cv-only", "--out", str(out)])
+    assert rc == 0 and not list(out.glob("run_*.json"))
+    rec = json.loads((out / "shared/cv_100.json").read_text())
+    assert rec["synthetic"] == str(synth) and rec["chosen"] == {"ratio": 0.5, "schedule": "constant"}
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "a", "--cv-only",
+                       "--out", str(out)]) == 2
