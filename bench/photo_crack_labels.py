@@ -1,7 +1,8 @@
 #!/usr/bin/env python
-"""How wide are the crack labels of frames made with photo-made crack assets? (issue 22: a model
-trained on photo-library frames scored crack IoU 5 on real val, on parametric ones 17; their crack
-labels were twice as wide as the real strokes.)
+"""How wide, and how visible, are the crack labels of frames made with photo-made crack assets?
+(issue 22: a model trained on photo-library frames scored crack IoU 5 on real val, on parametric
+ones 17; their crack labels were twice as wide as the real strokes, then, as strokes, nearly
+invisible in RGB: the renderer's MIP levels mixed them with the road colour beside them.)
 
     .venv/bin/python bench/photo_crack_labels.py --photos-every 60 --frames 24      # ~5 min on 2 busy CPU cores
 
@@ -10,15 +11,19 @@ Three arms, each composed from ``stages/highway.usda`` (defect types crack and p
 defects:0.5``, 512x320, ``--classmap builtin:road_defects_br``):
 
 - ``strokes``: a photo library (every ``--photos-every``-th ``train_full`` frame, train only) made
-  as now: a crack asset's mesh, and so its label, is the label's strokes;
+  as now: a crack asset's mesh, and so its label, is the label's strokes, its albedo their dark
+  core, edge-padded (plugins/roadtwin_photo/strokes.py);
 - ``area``: the same photos with ``--param crack_strokes=false`` (before: the closed strokes'
   area, holes filled, plus the fade band);
 - ``parametric``: no library.
 
 The library arms draw 1 parametric model per type beside the photo ones (``models_per_type``), so
-almost every crack is photo-made. Prints per arm: crack assets (mesh area / label area), frames
-with a crack, crack pixel share, median 2A/P of the per-frame crack masks (bench/label_stats.py's
-measure), against the real ``train/labels``. Writes to ``--figure`` each arm's frame with the most crack
+almost every crack is photo-made. ``--randomize`` renders with the per-frame camera model and
+looks, as bench/synthetic_set.py's training frames are. Prints per arm: crack assets (mesh area /
+label area), frames with a crack, crack pixel share, median 2A/P of the per-frame crack masks
+(bench/label_stats.py's measure), and the median Weber contrast of crack and pothole instances
+to the road around them (bench/label_contrast.py's measure: is the labelled defect visible?),
+against the real ``train`` frames. Writes to ``--figure`` each arm's frame with the most crack
 pixels beside a zoom of its crack, RGB and labels. ``--out DIR --reuse`` keeps what DIR holds. Not a test.
 """
 from __future__ import annotations
@@ -34,6 +39,7 @@ import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from label_contrast import folder_contrasts, instance_contrasts  # noqa: E402
 from label_stats import stroke_width  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -62,15 +68,17 @@ def make_arm(out: Path, name: str, library: Path | None, args) -> Path:
         reuse=args.reuse)
     run("render", str(out / f"{name}_town" / "town.usda"), "--rig", "survey", "--views", "defects:0.5",
         "--classmap", "builtin:road_defects_br", "--frames", str(args.frames), "--size", "512x320", "--formats",
-        "mmseg", "--seed", str(args.seed), "--executor", "serial", "-o", str(out / f"{name}_render"), reuse=args.reuse)
-    return out / f"{name}_render"
+        "mmseg", "--seed", str(args.seed), "--executor", "serial", *(["--randomize"] if args.randomize else []),
+        "-o", str(out / f"{name}_render{'_randomized' if args.randomize else ''}"), reuse=args.reuse)
+    return out / f"{name}_render{'_randomized' if args.randomize else ''}"
 
 
-def frames_of(render: Path) -> list[tuple[str, Path, np.ndarray]]:
+def frames_of(render: Path) -> list[tuple[str, Path, np.ndarray, np.ndarray]]:
+    """(stem, rgb path, crack mask, pothole mask) of each frame."""
     meta = json.loads((render / "meta.json").read_text())
-    crack = {c["name"]: c["id"] for c in meta["classes"]}["crack"]
-    return [(fr["stem"], render / fr["files"]["rgb"],
-             cv2.imread(str(render / fr["files"]["semantic"]), cv2.IMREAD_UNCHANGED) == crack) for fr in meta["frames"]]
+    ids = {c["name"]: c["id"] for c in meta["classes"]}
+    labels = [(fr, cv2.imread(str(render / fr["files"]["semantic"]), cv2.IMREAD_UNCHANGED)) for fr in meta["frames"]]
+    return [(fr["stem"], render / fr["files"]["rgb"], lab == ids["crack"], lab == ids["pothole"]) for fr, lab in labels]
 
 
 def crack_stats(masks: list[np.ndarray]) -> dict:
@@ -98,9 +106,13 @@ def overlay(rgb: np.ndarray, crack: np.ndarray) -> np.ndarray:
 
 
 def panel_row(title: str, frame, zoom: int = 3) -> np.ndarray:
-    """The frame (crack box in red) | that box zoomed: RGB | crack labels tinted red; a title bar."""
-    stem, rgb_path, crack = frame
+    """The frame (crack box in red) | that box zoomed: RGB | crack labels tinted red; a title bar
+    with the median Weber contrast C of the frame's crack instances (bench/label_contrast.py)."""
+    stem, rgb_path, crack, pothole = frame
     rgb = cv2.imread(str(rgb_path))
+    label = np.where(crack, CRACK, np.where(pothole, CRACK + 1, 1)).astype(np.uint8)
+    contrast = instance_contrasts(cv2.cvtColor(rgb, cv2.COLOR_BGR2RGB), label, CRACK, (CRACK, CRACK + 1))
+    c = f"{np.median([v[0] for v in contrast]):.3f}" if contrast else "-"
     h, w = crack.shape
     ch, cw = h // zoom, w // zoom
     ys, xs = np.nonzero(crack) if crack.any() else (np.array([h // 2]), np.array([w // 2]))
@@ -112,15 +124,15 @@ def panel_row(title: str, frame, zoom: int = 3) -> np.ndarray:
     cv2.rectangle(full, (x0, y0), (x0 + cw - 1, y0 + ch - 1), (0, 0, 255), 1)
     row = np.concatenate([full, big(rgb), big(overlay(rgb, crack))], axis=1)
     bar = np.full((26, row.shape[1], 3), 255, np.uint8)
-    text = (f"{title}: frame {stem}, {int(crack.sum())} crack px, 2A/P {stroke_width(crack):.2f} px; "
+    text = (f"{title}: frame {stem}, {int(crack.sum())} crack px, 2A/P {stroke_width(crack):.2f} px, contrast C {c}; "
             f"right: the red box x{zoom}, RGB | crack labels in red")
-    cv2.putText(bar, text, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(bar, text, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     return np.concatenate([bar, row], axis=0)
 
 
-def asset_view(lib: Path, name: str, size: int) -> np.ndarray:
-    """An asset's diffuse texture (over grey where transparent) with its mesh outline, the area the
-    renderer labels, in red."""
+def asset_view(lib: Path, name: str, size: int, mesh_only: bool = False) -> np.ndarray:
+    """An asset's diffuse texture (over grey where transparent; with ``mesh_only`` grey outside
+    its mesh too: what a renderer shows) with its mesh outline, the area the renderer labels, in red."""
     from roadtwin_core.usd import read_defect_asset
 
     model = read_defect_asset(lib / f"{name}.usda")
@@ -131,6 +143,10 @@ def asset_view(lib: Path, name: str, size: int) -> np.ndarray:
     img = cv2.resize(img, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     st = model.look.st(model.vertices[model.boundary, :2])
     px = np.column_stack([st[:, 0] * img.shape[1], (1 - st[:, 1]) * img.shape[0]])
+    if mesh_only:
+        inside = np.zeros(img.shape[:2], np.uint8)
+        cv2.fillPoly(inside, [np.round(px * 8).astype(np.int32)], 1, cv2.LINE_8, shift=3)
+        img[inside == 0] = 128
     cv2.polylines(img, [np.round(px * 8).astype(np.int32)], True, (0, 0, 255), 1, cv2.LINE_AA, shift=3)
     canvas = np.full((size, size, 3), 255, np.uint8)
     canvas[:img.shape[0], :img.shape[1]] = img
@@ -146,11 +162,12 @@ def asset_row(out: Path, size: int = 512) -> tuple[np.ndarray, str]:
     after = max(both, key=lambda a: a["footprint_area_m2"])
     before = area[key(after)]
     row = np.concatenate([asset_view(out / "lib_area", before["name"], size),
+                          asset_view(out / "lib_strokes", after["name"], size, mesh_only=True),
                           asset_view(out / "lib_strokes", after["name"], size)], axis=1)
     bar = np.full((26, row.shape[1], 3), 255, np.uint8)
-    text = (f"asset {after['name']}: texture + labelled mesh outline (red); left before "
-            f"(mesh {before['areaM2']:.3f} m2), right after (mesh {after['areaM2']:.3f} m2, strokes "
-            f"{after['footprint_area_m2']:.3f} m2)")
+    text = (f"asset {after['name']}, labelled mesh outline in red: left the photo's texture and crack area "
+            f"(mesh {before['areaM2']:.3f} m2); middle the strokes' mesh (mesh {after['areaM2']:.3f} m2, strokes "
+            f"{after['footprint_area_m2']:.3f} m2) with its dark-core colour; right its whole edge-padded texture")
     cv2.putText(bar, text, (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
     return np.concatenate([bar, row], axis=0), after["name"]
 
@@ -159,8 +176,8 @@ def figure(arms: dict[str, list], path_out: Path, path: Path) -> str:
     """Per arm, its frame with the most crack pixels (placements differ between the arms: their
     libraries hold other crack assets)."""
     rows, stems = [], []
-    for title, name in (("before: photo crack areas", "area"), ("after: photo crack strokes", "strokes"),
-                        ("parametric cracks only", "parametric")):
+    for title, name in (("photo crack areas (crack_strokes=false)", "area"),
+                        ("photo crack strokes (dark core, edge-padded)", "strokes"), ("parametric cracks only", "parametric")):
         frame = max(arms[name], key=lambda f: int(f[2].sum()))
         rows.append(panel_row(title, frame))
         stems.append(f"{name} {frame[0]}")
@@ -179,6 +196,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="scratch folder (default: a temp dir)")
     ap.add_argument("--reuse", action="store_true", help="with --out: keep the libraries, towns and renders it holds")
+    ap.add_argument("--randomize", action="store_true", help="render with --randomize (the training frames' looks)")
     ap.add_argument("--figure", type=Path, default=REPO / "docs" / "realism" / "photo_crack_labels.jpg")
     args = ap.parse_args()
     if not (REAL / "train_full" / "images").is_dir():
@@ -195,15 +213,21 @@ def main() -> None:
         run("reconstruct", "photos", str(photos), "--labels", labels, "-o", str(out / "lib_strokes"), reuse=args.reuse)
         run("reconstruct", "photos", str(photos), "--labels", labels, "--param", "crack_strokes=false",
             "-o", str(out / "lib_area"), reuse=args.reuse)
-        arms = {name: frames_of(make_arm(out, name, lib, args)) for name, lib in
-                (("area", out / "lib_area"), ("strokes", out / "lib_strokes"), ("parametric", None))}
+        renders = {name: make_arm(out, name, lib, args) for name, lib in
+                   (("area", out / "lib_area"), ("strokes", out / "lib_strokes"), ("parametric", None))}
+        arms = {name: frames_of(render) for name, render in renders.items()}
+        contrast = {name: folder_contrasts(render) for name, render in renders.items()}
+        contrast["real train labels"] = folder_contrasts(REAL / "train")
         real = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) == CRACK for f in sorted((REAL / "train" / "labels").glob("*.png"))]
         print(f"library area:    {library_stats(out / 'lib_area')}")
         print(f"library strokes: {library_stats(out / 'lib_strokes')}")
-        print("| frames | n | with crack | crack px share | median crack 2A/P px |\n|---|---|---|---|---|")
-        for name, masks in [*((k, [m for _, _, m in v]) for k, v in arms.items()), ("real train labels", real)]:
+        print("| frames | n | with crack | crack px share | median crack 2A/P px | crack / pothole contrast C, C_core "
+              "(instances) |\n|---|---|---|---|---|---|")
+        for name, masks in [*((k, [m for _, _, m, _ in v]) for k, v in arms.items()), ("real train labels", real)]:
             s = crack_stats(masks)
-            print(f"| {name} | {s['frames']} | {s['crack_frames']} | {s['share_pct']:.3f} % | {s['width_px']:.2f} |")
+            c = " / ".join(f"{np.median(v, axis=0)[0]:.3f}, {np.median(v, axis=0)[1]:.3f} ({len(v)})" if v else "-"
+                           for v in contrast[name].values())
+            print(f"| {name} | {s['frames']} | {s['crack_frames']} | {s['share_pct']:.3f} % | {s['width_px']:.2f} | {c} |")
         print(f"figure: {args.figure} (frames: {figure(arms, out, args.figure)})")
 
 

@@ -10,8 +10,10 @@ numpy, OpenCV, scipy, shapely, triangle).
    and resampled every ``edge_m``; a constrained Delaunay triangulation inside (no Steiner points
    on the outline, so vertices 0..n-1 are the boundary loop at z = 0). A crack's outline is its
    strokes themselves (``crack_strokes``, :mod:`.strokes`: parts bridged, holes slit open), so
-   the rendered label, which covers the whole mesh, is as thin as the photo's label strokes; the
-   texture keeps its photo colour inside and its fade band (outside the mesh, unseen).
+   the rendered label, which covers the whole mesh, is as thin as the photo's label strokes; its
+   textures are edge-padded (every texel outside the strokes takes the nearest stroke texel's
+   value, alpha 1: ``pad_from_footprint``) so the renderer's MIP levels keep the strokes' colour,
+   and the albedo is their dark core's (``stroke_core``: the label is wider than the crack).
 3. **Relief** by type (a prior, not a measurement: a single photo has no depth):
    ``pothole``: depth ``D = clip(depth_ratio * r_eq, min_depth_m, max_depth_m)`` (``r_eq`` the
    footprint's equivalent radius); the wall falls from the label edge over ``wall_ratio * r_eq``
@@ -42,7 +44,7 @@ from shapely.geometry import Polygon
 
 from .rectify import OrthoGrid, PhotoRig, grid_around, rectify
 from .seamless import REC709, linear_to_srgb8, srgb_to_linear
-from .strokes import ccw_ring, min_face_area, stroke_outline
+from .strokes import ccw_ring, min_face_area, pad_from_footprint, stroke_core, stroke_outline
 
 DEEP_TYPES = {"pothole": 1.0, "depression": 0.5}
 RAVELLED = {"pothole"}
@@ -66,6 +68,7 @@ class PatchParams:
     road_albedo: float = 0.12     # linear luminance the road around the defect is scaled to (0: keep the photo's)
     crack_strokes: bool = True    # a crack's mesh (and so its label) = its strokes (strokes.py); False: the area
     stroke_gap_m: float = 0.01    # width of the bridges between strokes and of the slits opening holes
+    stroke_core_px: int = 1       # crack strokes' colour: their darkest texel within this radius (0: the label's own)
 
 
 @dataclass
@@ -292,6 +295,9 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
     normal = ((nrm * 0.5 + 0.5) * 255 + 0.5).astype(np.uint8)
     albedo = np.dstack([colour.astype(np.uint8), (alpha * 255 + 0.5).astype(np.uint8)])
+    if flat_strokes:                # the mesh is the strokes: no texel beside them may bleed into them
+        albedo = pad_from_footprint(albedo, stroke_core(lum, foot, p.stroke_core_px))
+        roughness, normal = (pad_from_footprint(m, foot) for m in (roughness, normal))
 
     # texture coordinates: s = column / cols, t = 1 - row / rows (texel edges)
     rc = grid.to_rc(verts)

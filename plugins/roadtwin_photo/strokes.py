@@ -16,11 +16,22 @@ one piece, so a crack network's strokes become one simple polygon:
    noise, not road).
 
 The result's area is the strokes' plus bridges minus slits: a few percent at most.
+
+A stroke mesh covers one to three texels across, so a renderer's MIP levels (box-filtered) and
+bilinear taps mix a stroke's texels with those beside it. :func:`pad_from_footprint` gives every
+texel outside the strokes the value of the nearest stroke texel (edge padding, the dilation
+texture bakers use against MIP bleeding): whatever level is sampled on the mesh sees only stroke
+colour, not the road colour of the fade band (which made the strokes vanish at survey range).
+The colour padded from is the strokes' dark core (:func:`stroke_core`): a photo's crack label
+is wider than the crack (an annotator's stroke, pooled to the label's size), and the renderer's
+class map grows rendered crack labels by the same margin again (``dilate_px``), so a mesh
+painted with the label's mean colour would count the light rim twice.
 """
 from __future__ import annotations
 
 import numpy as np
 import shapely
+from scipy.ndimage import distance_transform_edt, minimum_filter
 from scipy.sparse.csgraph import minimum_spanning_tree
 from shapely.geometry import LineString, MultiPolygon, Polygon, box
 from shapely.ops import nearest_points
@@ -121,3 +132,22 @@ def min_face_area(xy: np.ndarray, faces: np.ndarray) -> float:
     q = xy[:, :2].astype(np.float32).astype(np.float64)[faces]
     cross = (q[:, 1, 0] - q[:, 0, 0]) * (q[:, 2, 1] - q[:, 0, 1]) - (q[:, 1, 1] - q[:, 0, 1]) * (q[:, 2, 0] - q[:, 0, 0])
     return float(0.5 * cross.min()) if len(q) else 0.0
+
+
+def pad_from_footprint(image: np.ndarray, foot: np.ndarray) -> np.ndarray:
+    """``image`` (R, C[, K]) with every texel outside ``foot`` (R, C) set to its nearest footprint
+    texel's value (Euclidean; ties by scipy's scan order, so the same input gives the same bytes).
+    Inside ``foot`` nothing changes; an empty footprint returns the image unchanged."""
+    if not foot.any() or foot.all():
+        return image
+    _, (rows, cols) = distance_transform_edt(~foot, return_indices=True)
+    return image[rows, cols]
+
+
+def stroke_core(lum: np.ndarray, foot: np.ndarray, radius: int) -> np.ndarray:
+    """The footprint texels that are the darkest (``lum``) of the footprint within ``radius``
+    texels (a square window): the crack itself inside its wider label."""
+    if radius <= 0:
+        return foot
+    darkest = minimum_filter(np.where(foot, lum, np.inf), size=2 * radius + 1, mode="nearest")
+    return foot & (lum <= darkest)
