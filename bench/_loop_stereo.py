@@ -151,7 +151,7 @@ def _summary(rows: list[dict], det: int, false: int, frames: int, per_frame: lis
 def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tuple[float, float],
                    floors: list[tuple[float, float]], cache: Path | None = None,
                    reject: tuple[float, float] | None = None, border_px: int = 0,
-                   k_region: float | None = None) -> list[dict]:
+                   k_region: float | None = None, refit_k: float | None = None) -> list[dict]:
     """One summary per (floor_depth_m, floor_area_m2) in ``floors``, all on the same disparity maps."""
     from roadtwin_stereo import StereoDefects
 
@@ -168,6 +168,7 @@ def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tu
                   "road_mask": road_mask(fr["semantic"], classes), "source": f"frame_{k:03d}"}
         for a, (depth_m, area_m2) in zip(acc, floors):
             extra = {} if k_region is None else {"k_region": k_region}
+            extra.update({} if refit_k is None else {"road_refit_k": refit_k})
             res = rec.run(inputs, rec.Params(floor_depth_m=depth_m, floor_area_m2=area_m2, border_px=border_px,
                                              **extra))
             f = frame_figures(fr, res, instances, truth)
@@ -185,7 +186,7 @@ def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tu
 def add_kept_map_args(ap, root: Path, cases: str, border_px: int) -> None:
     """The options of the scripts that read the loop's kept disparity maps on the tuning cases
     (bench/loop_missed.py, bench/loop_false_detections.py): where, which cases, which map, and
-    the detector's border and region rule."""
+    the detector's border, region rule and road-model refit."""
     from roadtwin_stereo import StereoDefects
 
     ap.add_argument("--out", type=Path, default=root / "out" / "loop_tune")
@@ -194,3 +195,5 @@ def add_kept_map_args(ap, root: Path, cases: str, border_px: int) -> None:
     ap.add_argument("--border-px", type=int, default=border_px, help="StereoDefectsParams.border_px")
     ap.add_argument("--k-region", type=float, default=StereoDefects.Params().k_region,
                     help="StereoDefectsParams.k_region (0 = the peak rule alone, the detector before)")
+    ap.add_argument("--refit-k", type=float, default=StereoDefects.Params().road_refit_k,
+                    help="StereoDefectsParams.road_refit_k (0 = no refit of the road model, the detector before)")

@@ -29,7 +29,8 @@ reported cases stay unseen: ``tune_highway_D_seed23``, ``tune_town_seed3``.
 
     PYTHONPATH=.:plugins .venv/bin/python bench/loop.py [--cases town,highway_D] [--duration 3]
         [--size 1280x720] [--out out/loop] [--reuse] [--subpixel 6,2 | 0]
-        [--floor DEPTH_M,AREA_M2 ...] [--reject E,R | 0] [--border-px N] [--k-region K | 0] [--no-surface]
+        [--floor DEPTH_M,AREA_M2 ...] [--reject E,R | 0] [--border-px N] [--k-region K | 0] [--refit-k K | 0]
+        [--no-surface]
 
 ``--floor``: the detector's physical floor (StereoDefectsParams floor_depth_m, floor_area_m2);
 repeated, every value is scored on the same disparity maps (a sweep). ``--reject E,R``: sub-pixel
@@ -38,7 +39,9 @@ matches whose standard error / residual exceed E / R x the frame's medians are i
 within N px of the cropped image's edge are dropped (StereoDefectsParams border_px; what the false
 detections are: bench/loop_false_detections.py). ``--k-region K``: a region is also a defect when
 its mean depth exceeds K x the noise of such a mean (StereoDefectsParams k_region; 0 = off; why
-potholes are missed: bench/loop_missed.py).
+potholes are missed: bench/loop_missed.py). ``--refit-k K``: the local road model is refitted without
+the regions reaching K noise units below and above the road (StereoDefectsParams road_refit_k; 0 =
+off; road_model.py step 5).
 
 Targets (issue 20): surface RMSE <= 5 mm; footprint IoU >= 0.8 and depth error <= 1 cm within
 10 m; >= 95 % of potholes in view found on undulating roads.
@@ -203,6 +206,10 @@ def main() -> None:
                     help="a region is also a defect when its mean depth exceeds this x the noise of a mean over as "
                     "many road pixels (StereoDefectsParams k_region; 0 = off, the detector before issue 20's miss "
                     "analysis, bench/loop_missed.py)")
+    ap.add_argument("--refit-k", type=float, default=default.road_refit_k,
+                    help="the local road model is refitted without the regions reaching this many noise units "
+                    "below and above the road (StereoDefectsParams road_refit_k; 0 = off, the detector before the "
+                    "refit, bench/loop_missed.py)")
     ap.add_argument("--no-surface", action="store_true", help="skip the LiDAR surface (stereo sweeps)")
     args = ap.parse_args()
     subpixel = tuple(float(x) for x in (args.subpixel + ",2").split(",")[:2])
@@ -233,12 +240,12 @@ def main() -> None:
                                                        f"_reject{reject[0]:g}x{reject[1]:g}")
         cache = args.out / case / f"disparity_{args.size}_{tag}.npz" if args.reuse else None
         sts = stereo_figures(bag, summary["instances"], truth, summary["classes"], subpixel, floors, cache, reject,
-                             args.border_px, args.k_region)
+                             args.border_px, args.k_region, args.refit_k)
         _log(f"{case}: stereo frames reconstructed and scored", t0)
         how = "SGBM" if subpixel[0] == 0 else f"SGBM + sub-pixel LK {subpixel[0]:g}x{subpixel[1]:g} px" + (
             "" if reject is None else f", reject {reject[0]:g}x err / {reject[1]:g}x residual")
         how += f", border {args.border_px} px" if args.border_px else ""
-        how += f", k_region {args.k_region:g}"
+        how += f", k_region {args.k_region:g}, refit {args.refit_k:g}"
         for (dm, am), st in zip(floors, sts):
             _print_stereo(st, f"{how}, floor {1000 * dm:g} mm, {am:g} m2")
         if len(floors) > 1:

@@ -126,7 +126,8 @@ def main() -> None:
                 mask = mask & ~_ring(fr["semantic"] == classes.index("lane_marking"), 3)
             res = rec.run({"disparity": maps[f"f{k:03d}"].astype(np.float64), "K": fr["K"],
                            "baseline": fr["baseline"], "road_mask": mask, "source": f"frame_{k:03d}"},
-                          rec.Params(texture=False, border_px=args.border_px, k_region=args.k_region))
+                          rec.Params(texture=False, border_px=args.border_px, k_region=args.k_region,
+                                     road_refit_k=args.refit_k))
             for cause, detail in classify(fr, res.labels, classes):
                 causes[cause] += 1
                 details[f"{cause}: {detail}"] += bool(detail)

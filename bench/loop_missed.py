@@ -26,7 +26,8 @@ truth and the detector's own intermediate maps say:
   detector?).
 
     PYTHONPATH=.:plugins .venv/bin/python bench/loop_missed.py [--out out/loop_tune]
-        [--cases tune_highway_D_seed23] [--tag lk6x2_reject1.3x2] [--border-px 3] [--k-region K] [--all]
+        [--cases tune_highway_D_seed23] [--tag lk6x2_reject1.3x2] [--border-px 3] [--k-region K] [--refit-k K]
+        [--all]
 """
 from __future__ import annotations
 
@@ -58,7 +59,7 @@ def detector_maps(disp: np.ndarray, mask: np.ndarray, K: np.ndarray, baseline: f
 
     d = np.where(mask > 0, disp, np.nan)
     seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, k_region=p.k_region, min_depth_m=p.floor_depth_m,
-                        min_area_m2=p.floor_area_m2, border_px=p.border_px)
+                        min_area_m2=p.floor_area_m2, border_px=p.border_px, refit_k=p.road_refit_k)
     dt, _ = transform_disparity(d)
     z, valid, sigma = road_residual(dt, seg, with_sigma=True)
     metric = metric_road_depth(z * sigma, d, valid & (z > -seg.k_grow), K, baseline)
@@ -192,6 +193,13 @@ def case_rows(out: Path, case: str, tag: str, params) -> list[dict]:
     return rows
 
 
+def absorbed(rows: list[dict]) -> float:
+    """Median share of the measured dip (``dip_meas``) the detector's road model took
+    (``dip_meas - dip_model``), over the views with a measured dip."""
+    a = [(r["dip_meas"] - r["dip_model"]) / r["dip_meas"] for r in rows if r["dip_meas"] > 0]
+    return float(np.median(a)) if a else float("nan")
+
+
 def print_table(rows: list[dict], show_all: bool) -> None:
     cols = ("frame", "defect", "dist", "area", "depth", "px", "valid", "merged", "lum", "tex", "dip_true", "dip_meas",
             "dip_model", "peak", "reg_peak", "sigma", "cov_candidate", "cov_seed", "cov_floor", "cov_border", "cause", "exact")
@@ -212,6 +220,8 @@ def print_table(rows: list[dict], show_all: bool) -> None:
     print("misses by cause: " + ", ".join(f"{k} {v}" for k, v in Counter(r["cause"] for r in rows
                                                                         if r["cause"] != "none").items()))
     miss = [r for r in rows if r["cause"] != "none"]
+    print("dip the road model absorbed ((measured - under the model) / measured), median: " + ", ".join(
+        f"{name} {100 * absorbed(rs):.0f} %" for name, rs in (("all views", rows), ("missed", miss), ("found", found))))
     if miss:
         med = lambda k, rs: float(np.nanmedian([r[k] for r in rs])) if rs else float("nan")  # noqa: E731
         for name, rs in (("missed", miss), ("found", found)):
@@ -230,7 +240,8 @@ def main() -> None:
     ap.add_argument("--all", action="store_true", help="list found views too")
     ap.add_argument("--json", type=Path, help="write the rows here")
     args = ap.parse_args()
-    params = StereoDefects.Params(texture=False, border_px=args.border_px, k_region=args.k_region)
+    params = StereoDefects.Params(texture=False, border_px=args.border_px, k_region=args.k_region,
+                                  road_refit_k=args.refit_k)
     rows = [r for case in args.cases.split(",") for r in case_rows(args.out, case, args.tag, params)]
     print_table(rows, args.all)
     if args.json:

@@ -66,6 +66,12 @@ class StereoDefectsParams:
                             "off). Why: a far pothole is a shallow dip over many pixels that the peak rule (k_seed) "
                             "misses; 12 chosen on bench/loop.py's tuning cases (bench/README.md, loop section). Not applied "
                             "to transformed (normalised) maps, where the physical floor cannot guard it")
+    road_refit_k: float = field(7.0, lo=0.0, hi=1000.0, doc="metric inputs: the local road model is refitted "
+                                "without the regions reaching this many noise units below the road and above it "
+                                "(road_model.py step 5; 0 = off). Why: a pothole under the model's 10-unit mask "
+                                "pulled the road down and came out a median 28 % shallower (bench/loop_missed.py); "
+                                "7 chosen on bench/loop.py's tuning cases. Not applied to transformed (normalised) "
+                                "maps, as k_region")
     min_area_frac: float = field(0.0, lo=0.0, hi=1.0, doc="optional floor on a defect's area (fraction of the image)")
     grid_m: float = field(0.01, lo=1e-4, hi=1.0, doc="grid sampling step of the defect mesh (m)")
     disparity_scale: float = field(1.0, lo=1e-9, doc="integer disparity PNGs are divided by this (KITTI: 256)")
@@ -245,7 +251,7 @@ class StereoDefects:
             raise RoadtwinError(f"{source}: only {100 * valid.mean():.1f} % of pixels have a disparity; no road to model")
         seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, k_region=p.k_region, min_area_frac=p.min_area_frac,
                             min_depth_m=p.floor_depth_m, min_area_m2=p.floor_area_m2,
-                            border_px=p.border_px)
+                            border_px=p.border_px, refit_k=0.0 if transformed_in else p.road_refit_k)
         road = None
         if transformed_in:
             dt = disp

@@ -16,7 +16,10 @@ is absorbed by measuring every threshold in units the frame itself supplies:
    roll/pitch the 1-D transformation leaves.
    Since issue 20 (``road_model="local"``, the default) this global surface is only the start: a
    local robust correction (tiles, rows; :mod:`.road_model`) follows the road's undulation, and
-   sigma is the small-scale noise of what is left (step 3 there), not of the quadratic's residual.
+   sigma is the small-scale noise of what is left (step 3 there), not of the quadratic's residual;
+   with ``refit_k`` (the reconstructor's metric inputs) it is refitted without the regions
+   reaching ``refit_k`` below and above the road (step 5 there: a pothole it left in the fit was
+   absorbed, a median 28 % of its dip on the loop's tuning highway).
 3. **Road noise sigma** (``road_model="quadratic"``). The residual ``e = d - r`` is smoothed by a normalised Gaussian (sigma
    ``blur_px``, ignoring invalid pixels); ``s`` = 1.4826 x MAD over the *road inliers* of the fit
    (not over every valid pixel: kerbs, verges and potholes would inflate it). ``z = e / s``.
@@ -88,6 +91,8 @@ class SegmentParams:
     tile_frac: float = 0.0625    # local model: tile side as a fraction of the frame's shorter side
     model_iters: int = 3         # local model: rounds of masking candidates and refitting
     mask_k: float = 10.0         # local model: regions reaching this many sigmas are masked from the road fit
+    refit_k: float = 0.0         # local model: refit without the depressions and bumps reaching this many sigmas,
+                                 # each down to its k_grow rim (road_model.py step 5; 0 = off)
     min_depth_m: float = 0.0     # physical floor (metric maps only): a kept region reaches this far below the road
     min_area_m2: float = 0.0     # physical floor (metric maps only): a kept region covers this much road
     border_px: int = 0           # regions reaching within this of the map's edge are dropped (0 = keep)
@@ -214,7 +219,7 @@ def road_residual(disp: np.ndarray, params: SegmentParams | None = None, with_si
     if p.road_model == "local":
         z, _, sigma = local_road_residual(e, valid, deep_regions(z, valid, p.k_grow, p.mask_k), k_grow=p.k_grow,
                                           k_peak=p.mask_k, tile_frac=p.tile_frac, blur_px=p.blur_px,
-                                          iters=p.model_iters)
+                                          iters=p.model_iters, refit_k=p.refit_k, open_px=p.open_px)
     return (z, valid, sigma) if with_sigma else (z, valid)
 
 
