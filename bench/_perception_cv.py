@@ -7,11 +7,19 @@ and fold, a mixed model is trained on the other folds plus the synthetic frames 
 budget (--cv-steps, split between the two phases as P : R) and evaluated on the held-out fold.
 Intersections and unions are summed over the folds; the point with the highest pooled IoU of
 --cv-metric (pothole by default, the issue's target) wins, ties to the earlier grid point.
+
+A synthetic set may carry pixels of real train frames (photo defect library, photo road
+surfaces): bench/synthetic_set.py lists their stems in ``<synthetic>/sources.json``
+(bench/_synthetic_sources.py). A fold whose held-out frames are listed there is not held out:
+it is refused before any model is trained (:func:`leak_guard`, :func:`check_leak`). A set
+without the file (made before provenance was recorded) is used with one line saying its
+provenance is unknown; the CV record says which (``leak_checked``).
 """
 from __future__ import annotations
 
 import itertools
 import json
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -23,6 +31,57 @@ from _perception_arms import SCHEDULES, Config, train_arm
 from _perception_data import CLASSES, Frames, cv_folds, real_subset, road_of
 from _perception_report import iou_table
 from _perception_train import evaluate, to_device
+
+
+SOURCES_FILE = "sources.json"          # bench/_synthetic_sources.py
+
+
+def synthetic_sources(folder) -> set[str] | None:
+    """Stems of the real frames whose pixels entered the synthetic set, or None (not recorded)."""
+    path = Path(folder) / SOURCES_FILE
+    if not path.is_file():
+        return None
+    try:
+        frames = json.loads(path.read_text())["frames"]
+        return {_stem(f) for f in frames}
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise RoadtwinError(f"{path}: not a provenance record of bench/synthetic_set.py ({exc.__class__.__name__})") from None
+
+
+def _stem(name) -> str:
+    return re.sub(r"\.(jpe?g|png)$", "", Path(str(name)).name, flags=re.IGNORECASE)
+
+
+def check_leak(folder, sources: set[str] | None, held: list[str], where: str) -> bool:
+    """Raise when held-out real frames are among the synthetic set's sources; True if checked."""
+    if sources is None:
+        return False
+    leaked = sorted(s for s in held if _stem(s) in sources)
+    if leaked:
+        roads = sorted({road_of(_stem(s)) for s in leaked})
+        raise RoadtwinError(
+            f"{Path(folder) / SOURCES_FILE}: {len(leaked)} of the {len(held)} train frames held out in {where} "
+            f"({len(roads)} road(s): {', '.join(roads[:4])}{' ...' if len(roads) > 4 else ''}) are textures of this "
+            f"synthetic set (e.g. {_stem(leaked[0])}), so CV would score it on its own sources; rebuild the photo "
+            f"library (roadtwin reconstruct photos) and road textures without the held-out roads (one set per fold), "
+            f"or give --mix RATIO:SCHEDULE")
+    return True
+
+
+def leak_guard(fractions, real: Frames, synth: Frames, cfg: Config, k: int, log=print) -> bool:
+    """Every fold of every fraction checked before any training; True if the provenance is known."""
+    sources = synthetic_sources(synth.folder)
+    if sources is None:
+        log(f"{synth.folder}: no {SOURCES_FILE}: the real frames this synthetic set was made from are unknown, so the "
+            f"mixed arm's CV cannot check that its held-out train roads are not in it")
+        return False
+    for fraction in fractions:
+        sub = real_subset(real, fraction, cfg.subset_seed)
+        folds, _ = cv_folds(sub.stems, k, cfg.subset_seed)
+        for f, held in enumerate(folds):
+            check_leak(synth.folder, sources, [sub.stems[i] for i in held],
+                       f"CV fold {f + 1} of {len(folds)} at {round(fraction * 100):g} %")
+    return True
 
 
 def grid_points(ratios, schedules) -> list[dict]:
@@ -55,9 +114,11 @@ def cv_point(fraction: float, point: dict, k: int, real: Frames, synth: Frames, 
     """One grid point: its k fold models, intersections and unions summed over the folds."""
     parts = [cv_one(fraction, point, f, k, real, synth, cfg, cv_steps, seed, device, lambda *a: None) for f in range(k)]
     done = [p for p in parts if p["steps"]]
-    return {**parts[0], "fold": "all", "held_out": [p["held_out"] for p in done], "steps": sum(p["steps"] for p in done),
-            "seconds": round(sum(p["seconds"] for p in done), 2), "I": np.sum([p["I"] for p in parts], 0).tolist(),
-            "U": np.sum([p["U"] for p in parts], 0).tolist(), "steps_per_model": max(p["steps"] for p in parts)}
+    checked = bool(done) and all(p.get("leak_checked", False) for p in done)
+    return {**parts[0], "leak_checked": checked, "fold": "all", "held_out": [p["held_out"] for p in done],
+            "steps": sum(p["steps"] for p in done), "seconds": round(sum(p["seconds"] for p in done), 2),
+            "I": np.sum([p["I"] for p in parts], 0).tolist(), "U": np.sum([p["U"] for p in parts], 0).tolist(),
+            "steps_per_model": max(p["steps"] for p in parts)}
 
 
 def cv_one(fraction: float, point: dict, fold: int, k: int, real: Frames, synth: Frames, cfg: Config,
@@ -69,6 +130,8 @@ def cv_one(fraction: float, point: dict, fold: int, k: int, real: Frames, synth:
         return {"fraction": fraction, "point": point, "fold": fold, "folds": len(folds), "by": by, "held_out": [],
                 "steps": 0, "seconds": 0.0, "I": [0] * len(CLASSES), "U": [0] * len(CLASSES)}
     held = folds[fold]
+    checked = check_leak(synth.folder, synthetic_sources(synth.folder), [sub.stems[i] for i in held],
+                         f"CV fold {fold + 1} of {len(folds)} at {round(fraction * 100):g} %")
     rest = np.setdiff1d(np.arange(len(sub.stems)), held)
     model, infos = train_arm("mixed", cv_config(cfg, cv_steps), seed, sub.subset(rest), synth, device, point,
                              log=log, style=sub.subset(rest))
@@ -76,7 +139,7 @@ def cv_one(fraction: float, point: dict, fold: int, k: int, real: Frames, synth:
     return {"fraction": fraction, "point": point, "fold": fold, "folds": k, "by": by,
             "held_out": sorted({road_of(s) for s in sub.subset(held).stems}) if by == "road" else f"{len(held)} frames",
             "steps": sum(p["steps"] for p in infos), "seconds": round(sum(p["seconds"] for p in infos), 2),
-            "I": i.sum(0).tolist(), "U": u.sum(0).tolist()}
+            "I": i.sum(0).tolist(), "U": u.sum(0).tolist(), "leak_checked": checked}
 
 
 def choose(fraction: float, parts: list[dict], metric: str) -> dict:
@@ -97,6 +160,7 @@ def choose(fraction: float, parts: list[dict], metric: str) -> dict:
     best = max(scores, key=lambda k: (np.nan_to_num(scores[k][metric], nan=-1.0), -list(scores).index(k)))
     return {"fraction": fraction, "metric": metric, "chosen": scores[best]["point"], "scores": scores,
             "steps_per_model": max(p.get("steps_per_model", p["steps"]) for p in parts), "folds": parts[0]["folds"], "by": parts[0]["by"],
+            "leak_checked": all(p.get("leak_checked", False) for p in parts),
             "chosen_on": "k-fold cross-validation over the real train frames of this fraction (never val/test)"}
 
 
@@ -136,10 +200,12 @@ def choose_set(records: list[dict], metric: str | None = None) -> dict:
         best = r["scores"][f"{r['chosen']['ratio']:g}:{r['chosen']['schedule']}"]
         if metric not in best["table"]:
             raise RoadtwinError(f"--metric: {metric!r} is not one of {', '.join(best['table'])}")
-        scores[r["synthetic"]] = {"point": r["chosen"], metric: best["table"][metric], "table": best["table"]}
+        scores[r["synthetic"]] = {"point": r["chosen"], metric: best["table"][metric], "table": best["table"],
+                                  "leak_checked": bool(r.get("leak_checked", False))}
     chosen = max(scores, key=lambda k: (np.nan_to_num(scores[k][metric], nan=-1.0), -list(scores).index(k)))
     return {"chosen": chosen, "point": scores[chosen]["point"], "metric": metric, "scores": scores,
             "fraction": records[0]["fraction"], "folds": records[0]["folds"], "by": records[0]["by"],
+            "leak_checked": all(v["leak_checked"] for v in scores.values()),
             "chosen_on": "pooled held-out IoU of k-fold CV over the real train frames (never val/test)"}
 
 

@@ -51,7 +51,8 @@ from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 import _segnet  # noqa: E402
 from _perception_arms import ARMS, LETTER, SYNTHETIC_ARMS, Config, make_model, run_arm, write_run  # noqa: E402
-from _perception_cv import choose_set, cross_validate, cv_path, cv_point, grid_points, parse_mix, write_json  # noqa: E402
+from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_points, leak_guard, parse_mix,  # noqa: E402
+                            write_json)
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
 from _perception_report import iou_table, load_runs, markdown, summarize  # noqa: E402
@@ -106,6 +107,8 @@ def prepare(args, log=print) -> dict:
     synth = load_frames(args.synthetic, size, args.limit_frames, cache) if synth_needed else None
     for f in args.fractions:
         real_subset(real, f, cfg.subset_seed)    # a fraction without pothole frames: one line
+    if "mixed" in arms and synth is not None and not args.mix:
+        leak_guard(args.fractions, real, synth, cfg, args.cv_folds, log)   # held-out roads in the set: one line
     keep = grid_frames(np.asarray(evalset.labels))
     grid = Path(args.out) / "eval_grid.npz"
     if not grid.exists():

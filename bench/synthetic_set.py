@@ -11,6 +11,9 @@ pack``: JPEG + class-mapped PNG labels at 512x320) into one folder, names prefix
 
     .venv/bin/python bench/synthetic_set.py --library LIB [--road-textures MATS] --frames 1000 -o OUT [--device cuda] [--jobs N]
     # OUT/synthetic/{images,labels,classes.json}: what bench/perception.py --synthetic reads
+    # OUT/synthetic/sources.json: the real frames whose pixels entered the set (photo defects
+    # placed, photo road surfaces worn; bench/_synthetic_sources.py): the mixed arm's CV refuses
+    # folds that hold them out
 
 Prints per scene: compose seconds, render seconds and frames/s, pack seconds. Not a test.
 ``--scenes`` picks some; ``--no-photo`` (item 1, photo defects), ``--no-road-textures`` (item 2,
@@ -33,6 +36,9 @@ from pathlib import Path
 from pxr import Sdf
 from rich.console import Console
 from rich.table import Table
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))       # bench/_synthetic_sources.py, also when loaded by path
+from _synthetic_sources import SOURCES_FILE, scene_sources, set_sources, write_json  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 # Look-alikes beside the defects, per unit of the layout's own pothole weight 5 (the highway's):
@@ -145,15 +151,34 @@ def compose_scene(scene: Scene, args, work: Path, index: int) -> float:
                "--props", "none" if args.no_props else "default", "--no-preview", "-o", str(work / "town")]
     if scene.surface:
         compose += ["--surface", scene.surface]
-    if args.road_textures and not args.no_road_textures:
-        names = [m["name"] for m in json.loads((args.road_textures / "materials.json").read_text())["materials"]]
-        compose += ["--road-textures", str(args.road_textures)]
-        if scene.road_photo is not None and names:
-            compose += ["--road-material", names[scene.road_photo % len(names)]]
+    road = worn_road_textures(scene, args)
+    if road:
+        compose += ["--road-textures", str(road[0])]
+        if scene.road_photo is not None and road[1]:
+            compose += ["--road-material", road[1][0]]
     if args.library and not args.no_photo:
         lib = scene_library(args.library, work / "library", args.library_shares, index)
         compose += ["--library", str(lib)]
-    return run(compose, log)
+    seconds = run(compose, log)
+    record_scene_sources(scene, args, work)
+    return seconds
+
+
+def worn_road_textures(scene: Scene, args) -> tuple[Path, list[str]] | None:
+    """The --road-textures folder this scene composes with and the photo materials it wears
+    (compose --road-material, render --material), or None without road textures."""
+    if not args.road_textures or args.no_road_textures:
+        return None
+    names = [m["name"] for m in json.loads((args.road_textures / "materials.json").read_text())["materials"]]
+    worn = [names[scene.road_photo % len(names)]] if scene.road_photo is not None and names else []
+    return args.road_textures, worn + ([scene.material] if scene.material in names else [])
+
+
+def record_scene_sources(scene: Scene, args, work: Path) -> Path:
+    """``work/sources.json``: the real frames whose pixels this scene's town carries
+    (bench/_synthetic_sources.py), read back from the composed town."""
+    folder, worn = worn_road_textures(scene, args) or (None, [])
+    return write_json(work / SOURCES_FILE, scene_sources(work / "town", folder, worn))
 
 
 def render_scene(scene: Scene, args, work: Path, index: int) -> dict:
@@ -161,6 +186,8 @@ def render_scene(scene: Scene, args, work: Path, index: int) -> dict:
     cli = [sys.executable, "-m", "roadtwin_core.cli"]
     shutil.rmtree(work / "render", ignore_errors=True)
     shutil.rmtree(work / "packed", ignore_errors=True)
+    if not (work / SOURCES_FILE).is_file() and (work / "town").is_dir():
+        record_scene_sources(scene, args, work)    # composed before provenance was recorded
     render = [*cli, "render", str(work / "town" / "town.usda"), "--rig", "survey", "--views", f"defects:{args.defect_share}:clear",
               "--randomize", "--classmap", class_map(args, work), "--frames", str(args.frames), "--size", args.size,
               "--seed", str(1000 + index), "--formats", "mmseg", "-o", str(work / "render")]
@@ -204,7 +231,25 @@ def merge(out: Path, names: list[str]) -> int:
             shutil.move(str(lab), dst / "labels" / f"{name}_{lab.name}")
         if (packed / "classes.json").is_file():
             shutil.copyfile(packed / "classes.json", dst / "classes.json")
+    write_set_sources(out)
     return len(list((dst / "images").iterdir()))
+
+
+def write_set_sources(out: Path, log=print) -> Path | None:
+    """``OUT/synthetic/sources.json`` over every scene whose frames the set holds; none (and a
+    stale one removed) when a scene's provenance was never recorded."""
+    dst = out / "synthetic"
+    names = {f.name for f in (dst / "images").iterdir()}
+    present = [s.name for s in SCENES if any(n.startswith(f"{s.name}_") for n in names)]
+    records = {}
+    for name in present:
+        path = out / "scenes" / name / SOURCES_FILE
+        if not path.is_file():
+            (dst / SOURCES_FILE).unlink(missing_ok=True)
+            log(f"{dst / SOURCES_FILE}: not written: scene {name} has no {path.name} (compose it again)")
+            return None
+        records[name] = json.loads(path.read_text())
+    return write_json(dst / SOURCES_FILE, set_sources(records))
 
 
 def main() -> None:
