@@ -20,6 +20,8 @@ Prints per scene: compose seconds, render seconds and frames/s, pack seconds. No
 road surfaces from photos), ``--no-props`` (item 3), ``--no-lookalikes`` (item 4) and ``--no-camera``
 (item 5, the measured camera targets: render with the class map minus its ``camera_targets``, so
 ``--randomize`` draws the generic camera) switch one realism item off for the ablation of issue 22.
+``--photo-types pothole`` (or ``crack``) keeps only those photo defects (the rest parametric): which
+photo defect type holds zero-shot back.
 """
 from __future__ import annotations
 
@@ -104,17 +106,32 @@ def weighted_layout(src: Path, dst: Path, lookalikes: bool, weights: dict[str, f
     return dst
 
 
-def scene_library(library: Path, dst: Path, shares: int, index: int) -> Path:
+def scene_library(library: Path, dst: Path, shares: int, index: int, types=None) -> Path | None:
     """Every ``shares``-th asset of the photo library (offset by the scene), linked into ``dst``:
-    each scene gets other real defects, and compose reads a fifth of a large library."""
-    dst.mkdir(parents=True)
+    each scene gets other real defects, and compose reads a fifth of a large library. ``types``:
+    only assets of these defect types (``--photo-types``: the others stay parametric); None when
+    no asset is left."""
     assets = sorted(p for p in library.glob("*.usda") if not p.name.endswith(".geom.usda"))
-    for asset in assets[index % shares::shares]:
+    if types is not None:
+        assets = [a for a in assets if asset_type(a) in types]
+    assets = assets[index % shares::shares]
+    if not assets:
+        return None
+    dst.mkdir(parents=True)
+    for asset in assets:
         for f in (asset, asset.with_name(f"{asset.stem}.geom.usda")):
             (dst / f.name).symlink_to(f.resolve())
     if (library / "textures").is_dir():
         (dst / "textures").symlink_to((library / "textures").resolve())
     return dst
+
+
+def asset_type(asset: Path) -> str | None:
+    """A library asset's ``roadtwin:defect:type`` (read from its root layer only, not its payload)."""
+    layer = Sdf.Layer.FindOrOpen(str(asset))
+    root = layer.GetPrimAtPath(Sdf.Path.absoluteRootPath.AppendChild(layer.defaultPrim)) if layer and layer.defaultPrim else None
+    attr = root.attributes.get("roadtwin:defect:type") if root else None
+    return attr.default if attr is not None else None
 
 
 def run(cmd: list[str], log: Path) -> float:
@@ -157,8 +174,9 @@ def compose_scene(scene: Scene, args, work: Path, index: int) -> float:
         if scene.road_photo is not None and road[1]:
             compose += ["--road-material", road[1][0]]
     if args.library and not args.no_photo:
-        lib = scene_library(args.library, work / "library", args.library_shares, index)
-        compose += ["--library", str(lib)]
+        lib = scene_library(args.library, work / "library", args.library_shares, index, args.photo_types)
+        if lib is not None:
+            compose += ["--library", str(lib)]
     seconds = run(compose, log)
     record_scene_sources(scene, args, work)
     return seconds
@@ -273,6 +291,8 @@ def main() -> None:
     ap.add_argument("--no-lookalikes", action="store_true")
     ap.add_argument("--no-props", action="store_true")
     ap.add_argument("--no-photo", action="store_true")
+    ap.add_argument("--photo-types", nargs="+", default=None, help="only these defect types from the photo library "
+                    "(e.g. pothole: photo potholes, parametric cracks); default all")
     ap.add_argument("--no-road-textures", action="store_true")
     ap.add_argument("--no-camera", action="store_true")
     args = ap.parse_args()

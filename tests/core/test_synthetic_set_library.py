@@ -1,0 +1,47 @@
+"""bench/synthetic_set.py's scene library: each scene links every N-th photo asset, and
+``--photo-types`` keeps only the named defect types (the isolation runs of issue 22: photo
+potholes with parametric cracks, and the reverse), read from each asset's own type attribute."""
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _synthetic_set():
+    spec = importlib.util.spec_from_file_location("bench_synthetic_set_lib", ROOT / "bench/synthetic_set.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _library(folder: Path, kinds: dict[str, str]) -> Path:
+    from roadtwin_core import DefectModel
+    from roadtwin_core.usd import write_defect_asset
+
+    verts = np.array([[0, 0, 0], [0.4, 0, 0], [0.4, 0.3, 0], [0, 0.3, 0], [0.2, 0.15, -0.04]], float)
+    faces = np.array([[0, 1, 4], [1, 2, 4], [2, 3, 4], [3, 0, 4]])
+    for name, kind in kinds.items():
+        # the file name says nothing of the type: the filter must read the asset
+        write_defect_asset(DefectModel(name, kind, verts, faces, np.array([0, 1, 2, 3])), folder / f"{name}.usda")
+    return folder
+
+
+def test_photo_types_keep_only_the_named_types_and_every_nth_of_them(tmp_path):
+    ss = _synthetic_set()
+    lib = _library(tmp_path / "lib", {"a": "pothole", "b": "crack", "c": "pothole", "d": "crack", "e": "pothole"})
+    linked = lambda d: sorted(p.name for p in d.glob("*.usda") if not p.name.endswith(".geom.usda"))  # noqa: E731
+    assert linked(ss.scene_library(lib, tmp_path / "all", 1, 0)) == ["a.usda", "b.usda", "c.usda", "d.usda", "e.usda"]
+    assert linked(ss.scene_library(lib, tmp_path / "pot", 1, 0, ["pothole"])) == ["a.usda", "c.usda", "e.usda"]
+    # every 2nd pothole, offset by the scene index
+    assert linked(ss.scene_library(lib, tmp_path / "pot1", 2, 1, ["pothole"])) == ["c.usda"]
+    assert linked(ss.scene_library(lib, tmp_path / "crk", 2, 0, ["crack"])) == ["b.usda"]
+    # each linked asset brings its payload file
+    assert (tmp_path / "pot" / "a.geom.usda").exists() and not (tmp_path / "pot" / "b.geom.usda").exists()
+    # a type the library lacks: no library at all (compose then runs without --library)
+    assert ss.scene_library(lib, tmp_path / "none", 1, 0, ["patch"]) is None and not (tmp_path / "none").exists()
