@@ -68,6 +68,16 @@ def check_leak(folder, sources: set[str] | None, held: list[str], where: str) ->
     return True
 
 
+def labels_beyond_fraction(real: Frames, subset: Frames, sources: set[str] | None) -> list[str] | None:
+    """Train frames outside a fraction's real subset that the synthetic set was made from (their
+    labels cut its photo defects and defect-free road textures): labels the fraction's arms are not
+    given, used through the twin. None when the set's provenance is unknown."""
+    if sources is None:
+        return None
+    inside = {_stem(s) for s in subset.stems}
+    return sorted(_stem(s) for s in real.stems if _stem(s) in sources and _stem(s) not in inside)
+
+
 def leak_guard(fractions, real: Frames, synth: Frames, cfg: Config, k: int, log=print) -> bool:
     """Every fold of every fraction checked before any training; True if the provenance is known."""
     sources = synthetic_sources(synth.folder)

@@ -51,8 +51,8 @@ from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 import _segnet  # noqa: E402
 from _perception_arms import ARMS, LETTER, SYNTHETIC_ARMS, Config, make_model, run_arm, write_run  # noqa: E402
-from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_points, leak_guard, parse_mix,  # noqa: E402
-                            write_json)
+from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_points, labels_beyond_fraction,  # noqa: E402
+                            leak_guard, parse_mix, synthetic_sources, write_json)
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
 from _perception_report import iou_table, load_runs, markdown, summarize  # noqa: E402
@@ -147,6 +147,13 @@ def one_run(args, ctx, arm, fraction, seed, device, log=print) -> Path:
     import torch
 
     res["device"] = torch.cuda.get_device_name() if str(device).startswith("cuda") else str(device)
+    if arm in SYNTHETIC_ARMS and arm != "zeroshot":
+        beyond = labels_beyond_fraction(ctx["real"], real_subset(ctx["real"], fraction, ctx["cfg"].subset_seed),
+                                        synthetic_sources(ctx["synth"].folder))
+        res["synthetic_from_train_beyond_fraction"] = None if beyond is None else len(beyond)
+        if beyond:
+            log(f"  note: the synthetic set was made from {len(beyond)} train frames outside this {round(fraction * 100):g} % "
+                f"subset (e.g. {beyond[0]}): their labels reach this arm through the twin")
     t = iou_table(np.array(res["I"]), np.array(res["U"]))
     log(f"  ({res['letter']}) {res['name']} seed {seed}: " + "  ".join(f"{c} {100 * t[c]:.1f}" for c in
                                                                       ("pothole", "crack", "ego_lane", "mIoU", "mIoU_fg"))

@@ -165,3 +165,24 @@ def test_sources_json_lists_the_frames_of_placed_photo_assets_and_worn_road_mate
     lines = []
     assert ss.write_set_sources(out, lines.append) is None and not path.exists()
     assert len(lines) == 1 and "town01" in lines[0]
+
+
+def test_a_run_records_the_train_frames_beyond_its_fraction_the_set_was_made_from(tmp_path, capsys):
+    """A mixed run at 50 % of the tiny train (2 of 4 frames) with a set made from all four train
+    frames: the two outside the subset gave labels the arm is not given; at 100 % none; a set
+    without provenance: unknown (None)."""
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    (synth / "sources.json").write_text(json.dumps({"frames": [f"{s}.jpg" for s in TRAIN_STEMS] + ["elsewhere_1"]}))
+    args = ["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "c", "--mix", "0.5:constant",
+            "--seeds", "0", "--fractions", "0.5", "1", "--out", str(tmp_path / "o")]
+    assert bench.main(args) == 0
+    runs = {json.loads(p.read_text())["name"]: json.loads(p.read_text()) for p in (tmp_path / "o").glob("run_*.json")}
+    assert len(TRAIN_STEMS) == 4 and runs["mixed@50%"]["real_frames"] == 2
+    assert runs["mixed@50%"]["synthetic_from_train_beyond_fraction"] == 2
+    assert runs["mixed@100%"]["synthetic_from_train_beyond_fraction"] == 0
+    assert "made from 2 train frames outside this 50 % subset" in capsys.readouterr().out
+    (synth / "sources.json").unlink()
+    assert bench.main(args[:-1] + [str(tmp_path / "o2")]) == 0
+    assert {json.loads(p.read_text())["synthetic_from_train_beyond_fraction"] for p in (tmp_path / "o2").glob("run_*.json")} == {None}
