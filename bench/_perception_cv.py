@@ -14,6 +14,12 @@ surfaces): bench/synthetic_set.py lists their stems in ``<synthetic>/sources.jso
 it is refused before any model is trained (:func:`leak_guard`, :func:`check_leak`). A set
 without the file (made before provenance was recorded) is used with one line saying its
 provenance is unknown; the CV record says which (``leak_checked``).
+
+A fair photo set per fold: ``perception.py frames`` lists, per fraction, the frames of its real
+subset and, per fold, that subset less the fold's held-out frames (:func:`fold_frame_lists`); a
+library built from a fold's list (docs/perception/efficientnet/gpu_synthetic.sh ``PHOTOS=``) gives
+that fold's set, and ``--cv-synthetic DIR0 DIR1 ...`` trains fold k's CV models with set k, each
+checked against its own fold only (:func:`fold_set`).
 """
 from __future__ import annotations
 
@@ -78,20 +84,54 @@ def labels_beyond_fraction(real: Frames, subset: Frames, sources: set[str] | Non
     return sorted(_stem(s) for s in real.stems if _stem(s) in sources and _stem(s) not in inside)
 
 
-def leak_guard(fractions, real: Frames, synth: Frames, cfg: Config, k: int, log=print) -> bool:
-    """Every fold of every fraction checked before any training; True if the provenance is known."""
-    sources = synthetic_sources(synth.folder)
-    if sources is None:
-        log(f"{synth.folder}: no {SOURCES_FILE}: the real frames this synthetic set was made from are unknown, so the "
+def fold_set(synth: Frames | list[Frames], fold: int) -> Frames:
+    """The synthetic set fold ``fold``'s CV models train with: one for all folds, or the fold's own
+    (``--cv-synthetic``, in fold order)."""
+    return synth[fold] if isinstance(synth, (list, tuple)) else synth
+
+
+def _where(fold: int, n_folds: int, fraction: float, synth) -> str:
+    own = f" (--cv-synthetic folder {fold})" if isinstance(synth, (list, tuple)) else ""
+    return f"CV fold {fold + 1} of {n_folds}{own} at {round(fraction * 100):g} %"
+
+
+def leak_guard(fractions, real: Frames, synth: Frames | list[Frames], cfg: Config, k: int, log=print) -> bool:
+    """Every fold of every fraction checked against the set it trains with, before any training;
+    True if every such set's provenance is known."""
+    folders = list(dict.fromkeys(s.folder for s in (synth if isinstance(synth, (list, tuple)) else [synth])))
+    unknown = [f for f in folders if synthetic_sources(f) is None]
+    for folder in unknown:
+        log(f"{folder}: no {SOURCES_FILE}: the real frames this synthetic set was made from are unknown, so the "
             f"mixed arm's CV cannot check that its held-out train roads are not in it")
+    if len(unknown) == len(folders):
         return False
     for fraction in fractions:
         sub = real_subset(real, fraction, cfg.subset_seed)
         folds, _ = cv_folds(sub.stems, k, cfg.subset_seed)
         for f, held in enumerate(folds):
-            check_leak(synth.folder, sources, [sub.stems[i] for i in held],
-                       f"CV fold {f + 1} of {len(folds)} at {round(fraction * 100):g} %")
-    return True
+            fs = fold_set(synth, f)
+            check_leak(fs.folder, synthetic_sources(fs.folder), [sub.stems[i] for i in held],
+                       _where(f, len(folds), fraction, synth))
+    return not unknown
+
+
+def pct(fraction: float) -> str:
+    return f"{round(fraction * 100):g}"
+
+
+def fold_frame_lists(real: Frames, fractions, k: int, seed: int) -> dict[str, list[str]]:
+    """The real frames a fair photo set may draw from, sorted stems by list name: per fraction its
+    real subset (``frames_PCT``: real_subset's choice), per CV fold that subset less the fold's
+    held-out frames (``frames_PCT_fold{f}``, f from 0: cv_folds' choice); no fold lists for k = 0."""
+    lists = {}
+    for fraction in fractions:
+        sub = real_subset(real, fraction, seed)
+        lists[f"frames_{pct(fraction)}"] = sorted(_stem(s) for s in sub.stems)
+        folds = cv_folds(sub.stems, k, seed)[0] if k else []
+        for f, held in enumerate(folds):
+            out = set(held.tolist())
+            lists[f"frames_{pct(fraction)}_fold{f}"] = sorted(_stem(s) for i, s in enumerate(sub.stems) if i not in out)
+    return lists
 
 
 def grid_points(ratios, schedules) -> list[dict]:
@@ -126,6 +166,8 @@ def cv_point(fraction: float, point: dict, k: int, real: Frames, synth: Frames, 
     done = [p for p in parts if p["steps"]]
     checked = bool(done) and all(p.get("leak_checked", False) for p in done)
     return {**parts[0], "leak_checked": checked, "fold": "all", "held_out": [p["held_out"] for p in done],
+            "synthetic_by_fold": [p["synthetic"] for p in done],
+            "synthetic_from_train_beyond_folds": [p["synthetic_from_train_beyond_fold"] for p in done],
             "steps": sum(p["steps"] for p in done), "seconds": round(sum(p["seconds"] for p in done), 2),
             "I": np.sum([p["I"] for p in parts], 0).tolist(), "U": np.sum([p["U"] for p in parts], 0).tolist(),
             "steps_per_model": max(p["steps"] for p in parts)}
@@ -139,17 +181,19 @@ def cv_one(fraction: float, point: dict, fold: int, k: int, real: Frames, synth:
     if fold >= len(folds):             # fewer frames than folds: this fold does not exist
         return {"fraction": fraction, "point": point, "fold": fold, "folds": len(folds), "by": by, "held_out": [],
                 "steps": 0, "seconds": 0.0, "I": [0] * len(CLASSES), "U": [0] * len(CLASSES)}
-    held = folds[fold]
-    checked = check_leak(synth.folder, synthetic_sources(synth.folder), [sub.stems[i] for i in held],
-                         f"CV fold {fold + 1} of {len(folds)} at {round(fraction * 100):g} %")
+    held, fs = folds[fold], fold_set(synth, fold)
+    sources = synthetic_sources(fs.folder)
+    checked = check_leak(fs.folder, sources, [sub.stems[i] for i in held], _where(fold, len(folds), fraction, synth))
     rest = np.setdiff1d(np.arange(len(sub.stems)), held)
-    model, infos = train_arm("mixed", cv_config(cfg, cv_steps), seed, sub.subset(rest), synth, device, point,
+    beyond = labels_beyond_fraction(real, sub.subset(rest), sources)      # train frames outside its training folds
+    model, infos = train_arm("mixed", cv_config(cfg, cv_steps), seed, sub.subset(rest), fs, device, point,
                              log=log, style=sub.subset(rest))
     i, u, _ = evaluate(model, to_device(sub.subset(held), device), device, cfg.batch)
     return {"fraction": fraction, "point": point, "fold": fold, "folds": k, "by": by,
             "held_out": sorted({road_of(s) for s in sub.subset(held).stems}) if by == "road" else f"{len(held)} frames",
             "steps": sum(p["steps"] for p in infos), "seconds": round(sum(p["seconds"] for p in infos), 2),
-            "I": i.sum(0).tolist(), "U": u.sum(0).tolist(), "leak_checked": checked}
+            "I": i.sum(0).tolist(), "U": u.sum(0).tolist(), "leak_checked": checked, "synthetic": fs.folder,
+            "synthetic_from_train_beyond_fold": None if beyond is None else len(beyond)}
 
 
 def choose(fraction: float, parts: list[dict], metric: str) -> dict:
@@ -171,6 +215,7 @@ def choose(fraction: float, parts: list[dict], metric: str) -> dict:
     return {"fraction": fraction, "metric": metric, "chosen": scores[best]["point"], "scores": scores,
             "steps_per_model": max(p.get("steps_per_model", p["steps"]) for p in parts), "folds": parts[0]["folds"], "by": parts[0]["by"],
             "leak_checked": all(p.get("leak_checked", False) for p in parts),
+            "synthetic_from_train_beyond_folds": parts[0].get("synthetic_from_train_beyond_folds"),
             "chosen_on": "k-fold cross-validation over the real train frames of this fraction (never val/test)"}
 
 
@@ -178,14 +223,29 @@ def cv_path(cache: Path, fraction: float) -> Path:
     return Path(cache) / f"cv_{round(fraction * 100):g}.json"
 
 
-def cross_validate(fraction: float, real: Frames, synth: Frames, cfg: Config, points: list[dict], k: int,
-                   cv_steps: int, metric: str, seed: int, device, cache: Path | None, log=print) -> dict:
-    """The mixed arm's choice for a fraction: read from ``cache`` if made, else computed there."""
+def set_names(synthetic, cv_synthetic=None) -> dict:
+    """What a CV record names: the set the arm's final run uses (choose-set compares those) and,
+    with ``--cv-synthetic``, the per-fold sets its CV models trained with."""
+    return {"synthetic": str(synthetic), **({"cv_synthetic": [str(Path(d)) for d in cv_synthetic]} if cv_synthetic else {})}
+
+
+def cross_validate(fraction: float, real: Frames, synth: Frames | list[Frames], cfg: Config, points: list[dict], k: int,
+                   cv_steps: int, metric: str, seed: int, device, cache: Path | None, log=print, final=None) -> dict:
+    """The mixed arm's choice for a fraction: read from ``cache`` if made, else computed there.
+    ``synth``: one set for every fold, or one per fold; ``final``: the set of the arm's run."""
     path = cv_path(cache, fraction) if cache else None
+    per_fold = isinstance(synth, (list, tuple))
     if path is not None and path.exists():
-        return json.loads(path.read_text())
+        record = json.loads(path.read_text())
+        made_with = record.get("cv_synthetic")
+        if made_with != ([s.folder for s in synth] if per_fold else None):
+            was = "per-fold sets " + ", ".join(made_with) if made_with else "one set"
+            raise RoadtwinError(f"{path}: a CV choice made with {was}, not this call's "
+                                f"{'--cv-synthetic' if per_fold else 'single set'}: give a fresh --out")
+        return record
     parts = [cv_point(fraction, p, k, real, synth, cfg, cv_steps, seed, device) for p in points]
-    record = {**choose(fraction, parts, metric), "synthetic": synth.folder}
+    names = set_names(final or (None if per_fold else synth.folder), [s.folder for s in synth] if per_fold else None)
+    record = {**choose(fraction, parts, metric), **names}
     if path is not None:
         write_json(path, record)
     log(f"  mixed arm at {round(fraction * 100):g} %: chose ratio {record['chosen']['ratio']:g}, {record['chosen']['schedule']} "

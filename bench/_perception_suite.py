@@ -2,10 +2,11 @@
 GPU, each writing its own run JSON, so a whole table takes few device calls.
 
 Jobs: the synthetic phase 1 of each seed (shared by arms b and e), the cross-validation of the
-mixed arm (one job per fraction and grid point, its folds inside; the parent picks the point
-once a fraction's jobs are in) and the runs. A job starts when what it needs exists; jobs whose
-output already exists (in --out or a --reuse folder) are skipped, so a table too long for one
-call is finished by the next call with the earlier outputs carried back. With --time-budget a
+mixed arm (one job per fraction and grid point, its folds inside, each fold with its own set
+under --cv-synthetic; the parent picks the point once a fraction's jobs are in) and the runs. A
+job starts when what it needs exists; jobs whose output already exists (in --out or a --reuse
+folder) are skipped, so a table too long for one call is finished by the next call with the
+earlier outputs carried back. With --time-budget a
 job starts only if, at the pace of the jobs done so far, it ends in time, so a call ends with
 whole runs only. Each job is ``perception.py _job COMMON SPEC`` with its log in OUT/logs/; the
 parent prints each one's wall time and steps/s as it ends.
@@ -22,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from _perception_arms import run_name
-from _perception_cv import choose, cv_path, write_json
+from _perception_cv import choose, cv_path, set_names, write_json
 
 HERE = Path(__file__).resolve().parent
 
@@ -154,7 +155,8 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
             target = cv_path(out / "shared", f)
             if not target.exists() and all(p.exists() for p in parts):
                 rec = choose(f, [json.loads(p.read_text()) for p in parts], metric)
-                rec["synthetic"] = json.loads(common.read_text()).get("synthetic")
+                given = json.loads(common.read_text())         # the final run's set (+ the per-fold CV sets)
+                rec.update(set_names(given.get("synthetic"), given.get("cv_synthetic")))
                 write_json(target, rec)
                 log(f"mixed arm at {pct(f)}%: CV chose ratio {rec['chosen']['ratio']:g}, {rec['chosen']['schedule']}")
         elapsed = time.perf_counter() - t0

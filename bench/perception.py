@@ -26,6 +26,8 @@ evaluation frames: `--test DIR` evaluates on the held-out roads instead of val.
 
 Subcommands:
   pack SRC DST    a dataset folder -> DST/images/*.jpg + labels/*.png (+ classes.json) at 512x320
+  frames          the real train frames a fair photo set may use: OUT/frames_PCT.txt (a fraction's
+                  subset) and OUT/frames_PCT_fold{k}.txt (that subset less CV fold k's held-out frames)
   train           the runs one after another in this process
   suite           the same runs as --parallel N processes on one GPU (bench/_perception_suite.py)
   report RUNS...  run JSONs (files or folders) -> table, results.json/.md, gains.png, grid.jpg
@@ -51,8 +53,9 @@ from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 import _segnet  # noqa: E402
 from _perception_arms import ARMS, LETTER, SYNTHETIC_ARMS, Config, make_model, run_arm, write_run  # noqa: E402
-from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_points, labels_beyond_fraction,  # noqa: E402
-                            leak_guard, parse_mix, synthetic_sources, write_json)
+from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_points,  # noqa: E402
+                            labels_beyond_fraction, leak_guard, parse_mix, synthetic_sources, write_json)
+from _perception_frames import cmd_frames  # noqa: E402
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
 from _perception_report import iou_table, load_runs, markdown, summarize  # noqa: E402
@@ -99,23 +102,45 @@ def prepare(args, log=print) -> dict:
         raise RoadtwinError(f"--arms {' '.join(a for a in arms if a in SYNTHETIC_ARMS)}: needs --synthetic DIR")
     if synth_needed:
         check_class_maps(train_dir, args.synthetic)
+    cv_dirs = _cv_synthetic_dirs(args, arms, train_dir)
     cache = Path(args.out) / "shared"
     t0 = time.perf_counter()
     real = load_frames(train_dir, cfg.size, args.limit_frames, cache)
     size = (real.images.shape[2], real.images.shape[1])
     evalset = load_frames(eval_dir, size, args.limit_frames, cache)
     synth = load_frames(args.synthetic, size, args.limit_frames, cache) if synth_needed else None
+    cv_synth = [load_frames(d, size, args.limit_frames, cache) for d in cv_dirs] or None
     for f in args.fractions:
         real_subset(real, f, cfg.subset_seed)    # a fraction without pothole frames: one line
-    if "mixed" in arms and synth is not None and not args.mix:
-        leak_guard(args.fractions, real, synth, cfg, args.cv_folds, log)   # held-out roads in the set: one line
+    if "mixed" in arms and synth is not None and not args.mix:       # held-out roads in a set: one line
+        leak_guard(args.fractions, real, cv_synth or synth, cfg, args.cv_folds, log)
     keep = grid_frames(np.asarray(evalset.labels))
     grid = Path(args.out) / "eval_grid.npz"
     if not grid.exists():
         np.savez_compressed(grid, frames=np.array(keep), images=evalset.images[keep], labels=evalset.labels[keep])
     log(f"real train {len(real.stems)} frames ({train_dir}), evaluation {len(evalset.stems)} ({eval_dir}), synthetic "
         f"{len(synth.stems) if synth else 0} ({args.synthetic}); {size[0]}x{size[1]}; loaded in {time.perf_counter() - t0:.1f} s")
-    return {"arms": arms, "cfg": cfg, "real": real, "evalset": evalset, "synth": synth, "cache": cache, "keep": keep}
+    return {"arms": arms, "cfg": cfg, "real": real, "evalset": evalset, "synth": synth, "cache": cache, "keep": keep,
+            "cv_synth": cv_synth}
+
+
+def _cv_synthetic_dirs(args, arms, train_dir) -> list[str]:
+    """--cv-synthetic's folders, checked: one per fold, the real class map, one fraction (the
+    folds, and so the sets, belong to one fraction's subset), for the mixed arm's CV only."""
+    dirs = list(getattr(args, "cv_synthetic", None) or [])
+    if not dirs:
+        return []
+    if "mixed" not in arms or args.mix:
+        raise RoadtwinError("--cv-synthetic: sets for the mixed arm's CV: give --arms c (mixed) and no --mix")
+    if len(dirs) != args.cv_folds:
+        raise RoadtwinError(f"--cv-synthetic: {len(dirs)} folder(s) for --cv-folds {args.cv_folds}: give one per fold, "
+                            f"in fold order (perception.py frames lists each fold's frames)")
+    if len(args.fractions) != 1:
+        raise RoadtwinError(f"--cv-synthetic: the per-fold sets belong to one fraction's folds; give one --fractions "
+                            f"value (got {' '.join(f'{f:g}' for f in args.fractions)})")
+    for d in dirs:
+        check_class_maps(train_dir, d)
+    return dirs
 
 
 def _device(args):
@@ -134,8 +159,8 @@ def _mix_for(args, ctx, fraction, device, log):
     if args.mix:
         return {**parse_mix(args.mix), "chosen_by": "--mix"}
     points = grid_points(args.cv_ratios, args.cv_schedules)
-    rec = cross_validate(fraction, ctx["real"], ctx["synth"], ctx["cfg"], points, args.cv_folds, args.cv_steps,
-                         args.cv_metric, args.cv_seed, device, ctx["cache"], log)
+    rec = cross_validate(fraction, ctx["real"], ctx["cv_synth"] or ctx["synth"], ctx["cfg"], points, args.cv_folds,
+                         args.cv_steps, args.cv_metric, args.cv_seed, device, ctx["cache"], log, final=args.synthetic)
     return {**rec["chosen"], "chosen_by": f"{rec['folds']}-fold CV by {rec['by']} on train ({rec['metric']})",
             "cv": rec["scores"]}
 
@@ -223,8 +248,8 @@ def cmd_job(common: str, spec_text: str, log=print) -> None:
         write_json(Path(spec["output"]), {**info, "wall_seconds": round(time.perf_counter() - t0, 2)})
     else:
         points = grid_points(args.cv_ratios, args.cv_schedules)
-        part = cv_point(spec["fraction"], points[spec["point"]], args.cv_folds, ctx["real"], ctx["synth"], ctx["cfg"],
-                        args.cv_steps, args.cv_seed, device)
+        part = cv_point(spec["fraction"], points[spec["point"]], args.cv_folds, ctx["real"],
+                        ctx["cv_synth"] or ctx["synth"], ctx["cfg"], args.cv_steps, args.cv_seed, device)
         write_json(Path(spec["output"]), part)
 
 
@@ -279,7 +304,21 @@ def _run_options(t) -> None:
     t.add_argument("--cv-seed", type=int, default=0)
     t.add_argument("--cv-only", action="store_true", help="only the mixed arm's CV: OUT/shared/cv_PCT.json per "
                    "fraction (for choose-set), no run")
+    t.add_argument("--cv-synthetic", nargs="+", default=None, metavar="DIR", help="one synthetic set per CV fold, in "
+                   "fold order (fold k's set made only from frames_PCT_fold{k}.txt of `frames`): fold k's CV models "
+                   "train with set k; the mixed arm's run still uses --synthetic. One --fractions value")
     t.add_argument("--out", required=True)
+
+
+def _frames_options(f) -> None:
+    f.add_argument("--real", help="real data folder with train/ (road_defects_br layout)")
+    f.add_argument("--train", help="real train folder (default REAL/train)")
+    f.add_argument("--fractions", type=float, nargs="+", default=[1.0, 0.1, 0.05], help="shares of the real train frames")
+    f.add_argument("--cv-folds", type=int, default=3, help="folds over the train roads (default 3; 0: no fold lists)")
+    f.add_argument("--subset-seed", type=int, default=0, help="seed of the fixed real subsets (and CV folds)")
+    f.add_argument("--size", default="512x320", help="size the frames are read at, as train's --size (the pothole check)")
+    f.add_argument("--limit-frames", type=int, default=None, help="first N frames (as train's --limit-frames)")
+    f.add_argument("--out", required=True, help="folder of frames_PCT.txt and frames_PCT_fold{k}.txt")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -292,6 +331,7 @@ def build_parser() -> argparse.ArgumentParser:
     pk.add_argument("--size", default="512x320", help="WIDTHxHEIGHT (default 512x320, the real frames')")
     pk.add_argument("--quality", type=int, default=90, help="JPEG quality (default 90)")
     pk.add_argument("--limit", type=int, default=None, help="first N frames only")
+    _frames_options(sub.add_parser("frames", help="per fraction and CV fold, the train frames a fair photo set may use"))
     _run_options(sub.add_parser("train", help="the runs one after another"))
     s = sub.add_parser("suite", help="the runs as parallel processes on one GPU")
     _run_options(s)
@@ -319,6 +359,8 @@ def main(argv=None) -> int:
     try:
         if args.cmd == "pack":
             pack(args.src, args.dst, parse_size(args.size), args.quality, args.limit)
+        elif args.cmd == "frames":
+            cmd_frames(args)
         elif args.cmd == "train":
             cmd_train(args)
         elif args.cmd == "suite":
