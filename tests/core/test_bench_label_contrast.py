@@ -2,23 +2,16 @@
 and flat-coloured defects of known luma (issue 22: photo crack strokes rendered invisible)."""
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from bench_script import load_bench_script
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bench_label_contrast", ROOT / "bench" / "label_contrast.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script("label_contrast")
 
 
 def _luma(value) -> float:

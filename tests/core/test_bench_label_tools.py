@@ -2,9 +2,6 @@
 class map keeps every class while dropping only the measured camera targets (issue 22's ablation)."""
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
 from types import SimpleNamespace
 
 import cv2
@@ -12,16 +9,12 @@ import numpy as np
 import pytest
 
 from roadtwin_core.render.classmap import load_class_map
+from bench_script import load_bench_script
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _load(name: str):
-    spec = importlib.util.spec_from_file_location(f"bench_{name}", ROOT / "bench" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod          # dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script(name)
 
 
 @pytest.mark.parametrize("width", [2, 3, 6])

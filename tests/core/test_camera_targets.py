@@ -4,9 +4,7 @@ a selected file's ranges are what draw() samples from, and the sensor model's ne
 (optics blur, auto-exposure, saturation) do what they say."""
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,16 +14,13 @@ from PIL import Image
 from roadtwin_core import RoadtwinError
 from roadtwin_core.render.classmap import load_class_map
 from roadtwin_core.render.randomize import ImageEffects, Ranges, apply_sensor, auto_exposure, draw
+from bench_script import load_bench_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def _camera_stats():
-    spec = importlib.util.spec_from_file_location("bench_camera_stats", ROOT / "bench/camera_stats.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script("camera_stats")
 
 
 def test_defaults_unchanged_without_targets():

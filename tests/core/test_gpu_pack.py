@@ -19,6 +19,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from bench_script import load_bench_script
 
 ROOT = Path(__file__).resolve().parents[2]
 MIB = 1024 * 1024
@@ -30,11 +31,7 @@ pytestmark = pytest.mark.skipif(importlib.util.find_spec("setuptools") is None,
 
 
 def _tool():
-    spec = importlib.util.spec_from_file_location("bench_gpu_pack", ROOT / "bench/gpu_pack.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script("gpu_pack")
 
 
 def fake_wheel(folder: Path, name: str = "fake_tiny", version: str = "1.0", payload: int = 1000) -> Path:

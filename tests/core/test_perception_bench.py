@@ -3,7 +3,6 @@ with equal step counts, the report, the bootstrap against closed cases, the copy
 the road folds of the cross-validation, and its bad inputs (one line, exit 2)."""
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 import subprocess
@@ -13,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
+from bench_script import load_bench_script
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "tests/data/road_defects_br_tiny"
@@ -21,11 +21,7 @@ SMALL = ["--device", "cpu", "--steps", "1", "--pretrain-steps", "1", "--batch", 
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("bench_perception", ROOT / "bench/perception.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)        # puts bench/ on sys.path: the _perception_* modules import
-    return mod
+    return load_bench_script("perception")
 
 
 def make_standin_synthetic(root: Path, n: int = 4, size=(128, 80), classes=None) -> Path:

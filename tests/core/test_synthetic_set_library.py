@@ -3,21 +3,15 @@
 potholes with parametric cracks, and the reverse), read from each asset's own type attribute."""
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
+from bench_script import load_bench_script
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _synthetic_set():
-    spec = importlib.util.spec_from_file_location("bench_synthetic_set_lib", ROOT / "bench/synthetic_set.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench_script("synthetic_set")
 
 
 def _library(folder: Path, kinds: dict[str, str]) -> Path:
