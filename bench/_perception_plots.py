@@ -15,6 +15,13 @@ ARM_LABELS = {"pretrain": "(b) synthetic pre-train", "mixed": "(c) mixed batches
               "zeroshot": "(e) zero-shot"}
 
 
+def seed_text(gains: dict, over: str) -> str:
+    """The seeds behind the bars over one baseline, e.g. "seeds 0, 1, 2" or "seed 0" (a bar over
+    fewer seeds than the figure's others must say so)."""
+    seeds = sorted({s for g in gains.values() if g["over"] == over for s in g["seeds"]})
+    return ("seed " if len(seeds) == 1 else "seeds ") + ", ".join(map(str, seeds))
+
+
 def gains_plot(summary: dict, path: Path, metrics=("pothole", "mIoU")) -> Path | None:
     import matplotlib
 
@@ -41,12 +48,11 @@ def gains_plot(summary: dict, path: Path, metrics=("pothole", "mIoU")) -> Path |
                 err[1].append(max(0.0, 100 * (g[m]["hi"] - g[m]["gain"])))
             ax.bar(xs, ys, width, yerr=err, capsize=3, color=ARM_COLOURS[arm], label=ARM_LABELS[arm])
         ax.axhline(0, color="k", lw=0.8)
-        ax.set_xticks(range(len(overs)), [f"{o.split('@')[1]} real" for o in overs])
+        ax.set_xticks(range(len(overs)), [f"{o.split('@')[1]} real\n{seed_text(gains, o)}" for o in overs])
         ax.set_ylabel(f"{m.replace('_', ' ')} gain over (a) real only (IoU points)")
         ax.grid(axis="y", alpha=0.3)
-    seeds = sorted({s for g in gains.values() for s in g["seeds"]})
     fig.suptitle(f"gain over real-only, equal steps ({summary['steps_per_run']}), {summary['eval']['frames']} "
-                 f"val frames, seeds {seeds} pooled, 95 % paired bootstrap", fontsize=9)
+                 f"val frames, each bar's seeds pooled (under it), 95 % paired bootstrap", fontsize=9)
     axes[0][0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

@@ -324,3 +324,15 @@ def test_cv_only_writes_the_choice_naming_its_synthetic_set_and_trains_no_run(tm
     assert rec["synthetic"] == str(synth) and rec["chosen"] == {"ratio": 0.5, "schedule": "constant"}
     assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "a", "--cv-only",
                        "--out", str(out)]) == 2
+
+
+def test_gains_plot_says_the_seeds_under_each_bar():
+    """A 100 % bar of one seed beside 10 % bars of three must not read as three seeds pooled."""
+    _bench()
+    from _perception_plots import seed_text
+
+    gains = {"mixed@100%": {"over": "real@100%", "seeds": [0]},
+             "mixed@10%": {"over": "real@10%", "seeds": [0, 1, 2]},
+             "paste@10%": {"over": "real@10%", "seeds": [1, 3]}}
+    assert seed_text(gains, "real@100%") == "seed 0"
+    assert seed_text(gains, "real@10%") == "seeds 0, 1, 2, 3"
