@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -34,12 +33,9 @@ import numpy as np
 from roadtwin_core.errors import RoadtwinError
 
 from _perception_arms import SCHEDULES, Config, train_arm
-from _perception_data import CLASSES, Frames, cv_folds, real_subset, road_of
+from _perception_data import CLASSES, SOURCES_FILE, Frames, cv_folds, frame_stem, real_subset, road_of
 from _perception_report import iou_table
 from _perception_train import evaluate, to_device
-
-
-SOURCES_FILE = "sources.json"          # bench/_synthetic_sources.py
 
 
 def synthetic_sources(folder) -> set[str] | None:
@@ -49,26 +45,22 @@ def synthetic_sources(folder) -> set[str] | None:
         return None
     try:
         frames = json.loads(path.read_text())["frames"]
-        return {_stem(f) for f in frames}
+        return {frame_stem(f) for f in frames}
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise RoadtwinError(f"{path}: not a provenance record of bench/synthetic_set.py ({exc.__class__.__name__})") from None
-
-
-def _stem(name) -> str:
-    return re.sub(r"\.(jpe?g|png)$", "", Path(str(name)).name, flags=re.IGNORECASE)
 
 
 def check_leak(folder, sources: set[str] | None, held: list[str], where: str) -> bool:
     """Raise when held-out real frames are among the synthetic set's sources; True if checked."""
     if sources is None:
         return False
-    leaked = sorted(s for s in held if _stem(s) in sources)
+    leaked = sorted(s for s in held if frame_stem(s) in sources)
     if leaked:
-        roads = sorted({road_of(_stem(s)) for s in leaked})
+        roads = sorted({road_of(frame_stem(s)) for s in leaked})
         raise RoadtwinError(
             f"{Path(folder) / SOURCES_FILE}: {len(leaked)} of the {len(held)} train frames held out in {where} "
             f"({len(roads)} road(s): {', '.join(roads[:4])}{' ...' if len(roads) > 4 else ''}) are textures of this "
-            f"synthetic set (e.g. {_stem(leaked[0])}), so CV would score it on its own sources; rebuild the photo "
+            f"synthetic set (e.g. {frame_stem(leaked[0])}), so CV would score it on its own sources; rebuild the photo "
             f"library (roadtwin reconstruct photos) and road textures without the held-out roads (one set per fold), "
             f"or give --mix RATIO:SCHEDULE")
     return True
@@ -80,8 +72,8 @@ def labels_beyond_fraction(real: Frames, subset: Frames, sources: set[str] | Non
     given, used through the twin. None when the set's provenance is unknown."""
     if sources is None:
         return None
-    inside = {_stem(s) for s in subset.stems}
-    return sorted(_stem(s) for s in real.stems if _stem(s) in sources and _stem(s) not in inside)
+    inside = {frame_stem(s) for s in subset.stems}
+    return sorted(frame_stem(s) for s in real.stems if frame_stem(s) in sources and frame_stem(s) not in inside)
 
 
 def fold_set(synth: Frames | list[Frames], fold: int) -> Frames:
@@ -126,11 +118,11 @@ def fold_frame_lists(real: Frames, fractions, k: int, seed: int) -> dict[str, li
     lists = {}
     for fraction in fractions:
         sub = real_subset(real, fraction, seed)
-        lists[f"frames_{pct(fraction)}"] = sorted(_stem(s) for s in sub.stems)
+        lists[f"frames_{pct(fraction)}"] = sorted(frame_stem(s) for s in sub.stems)
         folds = cv_folds(sub.stems, k, seed)[0] if k else []
         for f, held in enumerate(folds):
             out = set(held.tolist())
-            lists[f"frames_{pct(fraction)}_fold{f}"] = sorted(_stem(s) for i, s in enumerate(sub.stems) if i not in out)
+            lists[f"frames_{pct(fraction)}_fold{f}"] = sorted(frame_stem(s) for i, s in enumerate(sub.stems) if i not in out)
     return lists
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -127,6 +128,15 @@ def check_class_maps(real_dir, synth_dir) -> None:
 
 
 # ------------------------------------------------------------------------------------ folds
+SOURCES_FILE = "sources.json"   # a synthetic set's provenance: bench/_synthetic_sources.py writes, the CV reads
+
+
+def frame_stem(name) -> str:
+    """A frame's stem from its name or path: folder and image extension dropped
+    (``/train/images/1050564_DF_..._00368.jpg`` -> ``1050564_DF_..._00368``); a bare stem stays."""
+    return re.sub(r"\.(jpe?g|png)$", "", Path(str(name)).name, flags=re.IGNORECASE)
+
+
 def road_of(stem: str) -> str:
     """The road of a road_defects_br frame name ``<id>_<state>_<road>_...`` (e.g. RS_290)."""
     parts = Path(stem).name.split("_")

@@ -30,32 +30,25 @@ from pathlib import Path
 
 from pxr import Sdf
 
+from roadtwin_core.apps.library import read_interface
 from roadtwin_core.atomic import atomic_write_bytes
 from roadtwin_core.errors import RoadtwinError
 
-SOURCES_FILE = "sources.json"
+from _perception_data import frame_stem
+
 _PHOTO_SOURCE = re.compile(r"^photo (?P<path>.+?) \([^()]* instance \d+\); license:")
-
-
-def frame_stem(path: str) -> str:
-    """``/data/train/images/1050564_DF_..._00368.jpg`` -> ``1050564_DF_..._00368``."""
-    return Path(str(path)).stem
 
 
 def asset_frame(asset: Path) -> str | None:
     """The stem of the photo frame a library asset was cut from, or None (not from a photo)."""
-    layer = Sdf.Layer.FindOrOpen(str(asset))
-    if layer is None:
-        raise RoadtwinError(f"{asset}: cannot open the composed library asset")
-    root = layer.GetPrimAtPath(f"/{layer.defaultPrim}") if layer.defaultPrim else layer.rootPrims[0]
-    attrs = root.attributes if root else {}
-    source = attrs["roadtwin:source"].default if "roadtwin:source" in attrs else None
-    match = _PHOTO_SOURCE.match(str(source or ""))
+    attrs = read_interface(asset).attrs                  # the root prim's attributes, geometry not loaded
+    source = str(attrs.get("roadtwin:source") or "")
+    match = _PHOTO_SOURCE.match(source)
     if match:
         return frame_stem(match["path"])
-    if str(source or "").startswith("photo ") and "roadtwin:params" in attrs:
+    if source.startswith("photo ") and "roadtwin:params" in attrs:
         try:
-            frame = json.loads(attrs["roadtwin:params"].default or "{}").get("frame")
+            frame = json.loads(attrs["roadtwin:params"] or "{}").get("frame")
         except ValueError:
             frame = None
         if frame:

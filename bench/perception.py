@@ -193,7 +193,9 @@ def cmd_train(args, log=print) -> list[Path]:
     if args.cv_only:
         if "mixed" not in ctx["arms"] or args.mix:
             raise RoadtwinError("--cv-only: cross-validates the mixed arm: give --arms c and no --mix")
-        return [cv_path(ctx["cache"], f) for f in args.fractions if _mix_for(args, ctx, f, device, log)]
+        for f in args.fractions:
+            _mix_for(args, ctx, f, device, log)          # the CV, its record written under OUT/shared
+        return [cv_path(ctx["cache"], f) for f in args.fractions]
     written = []
     for seed in args.seeds:
         for arm in ctx["arms"]:

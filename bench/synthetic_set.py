@@ -26,6 +26,7 @@ photo defect type holds zero-shot back.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import shutil
 import subprocess
@@ -39,8 +40,11 @@ from pxr import Sdf
 from rich.console import Console
 from rich.table import Table
 
+from roadtwin_core.apps.library import read_interface
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))       # bench/_synthetic_sources.py, also when loaded by path
-from _synthetic_sources import SOURCES_FILE, scene_sources, set_sources, write_json  # noqa: E402
+from _perception_data import SOURCES_FILE  # noqa: E402
+from _synthetic_sources import scene_sources, set_sources, write_json  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 # Look-alikes beside the defects, per unit of the layout's own pothole weight 5 (the highway's):
@@ -126,12 +130,10 @@ def scene_library(library: Path, dst: Path, shares: int, index: int, types=None)
     return dst
 
 
+@functools.lru_cache(maxsize=None)
 def asset_type(asset: Path) -> str | None:
-    """A library asset's ``roadtwin:defect:type`` (read from its root layer only, not its payload)."""
-    layer = Sdf.Layer.FindOrOpen(str(asset))
-    root = layer.GetPrimAtPath(Sdf.Path.absoluteRootPath.AppendChild(layer.defaultPrim)) if layer and layer.defaultPrim else None
-    attr = root.attributes.get("roadtwin:defect:type") if root else None
-    return attr.default if attr is not None else None
+    """A library asset's ``roadtwin:defect:type`` (its interface only; each asset read once for all scenes)."""
+    return read_interface(asset).attrs.get("roadtwin:defect:type")
 
 
 def run(cmd: list[str], log: Path) -> float:
