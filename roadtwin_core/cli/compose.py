@@ -38,6 +38,9 @@ def compose(
                                                  "reconstruct photo-surfaces): each becomes a roadMaterial variant"),
     road_material: Optional[str] = typer.Option(None, "--road-material", help="the roadMaterial variant selected "
                                                 "(default asphalt; cobblestone, cement or a --road-textures name)"),
+    defect_priors: Optional[str] = typer.Option(None, "--defect-priors", help="per-type parameter distributions "
+                                                "drawn instead of the types' own ranges: builtin:road_defects_br "
+                                                "(measured from its train labels) or a TOML file"),
 ) -> None:
     """Place defects on a layout, merge them into the road meshes and write a town stage."""
     from ..apps.compose.run import compose as run_compose
@@ -58,7 +61,8 @@ def compose(
         result = run_compose(layout, out, defects=defects, seed=seed, merger=merger, surface=surface,
                              progress=report, preview=preview, executor=executor, ray_address=ray_address,
                              workers=workers, library_dir=library, merger_params=merger_params, props=props,
-                             road_textures=road_textures, road_material=road_material)
+                             road_textures=road_textures, road_material=road_material,
+                             defect_priors=defect_priors)
     _print_summary(result)
 
 

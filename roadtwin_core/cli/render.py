@@ -31,9 +31,9 @@ def render(
     frames: int = typer.Option(8, "--frames", help="number of frames (with --poses or stage cameras: at most theirs)"),
     rig: Optional[str] = typer.Option(None, "--rig", help="camera rig preset: survey | dashcam | stereo | inspection "
                                       "(size, field of view, height, pitch, baseline; explicit options override)"),
-    views: Optional[str] = typer.Option(None, "--views", help="random (lane poses) | defects:SHARE[:clear] (that share "
-                                        "of frames aimed at a pothole or crack 5-25 m ahead; :clear = the rest "
-                                        "without any). Default: the stage's camera prims, else random"),
+    views: Optional[str] = typer.Option(None, "--views", help="random (lane poses) | defects:SHARE[:clear][:NEAR-FAR] (that "
+                                        "share of frames aimed at a pothole or crack NEAR-FAR m ahead, default 5-25; "
+                                        ":clear = the rest without any). Default: the stage's camera prims, else random"),
     randomize: bool = typer.Option(False, "--randomize", help="per-frame domain randomization: sun, sky, weather, "
                                    "road tint and wear, verge and shoulder surfaces, exposure, white balance, "
                                    "noise, motion blur, vignetting, JPEG"),

@@ -33,6 +33,11 @@ wide at 512x320, from 2x2 max pooling of 1024x640 masks), while a ray cast sampl
 groove at pixel centres and leaves a broken 1-px line; growing it by 1 px gives the same stroke
 width (measured on the real train labels: median 2A/P of crack components 2.06 px).
 
+``[label_range_m]`` (optional) sets a class's pixels deeper than that many metres (z-depth) to
+ignore after growing (:meth:`ClassMap.within_range`): a survey's annotators label defects only so
+far ahead (road_defects_br: bench/defect_priors.py measures where the train labels end), and a
+far defect labelled where the real frames leave it unlabelled teaches the opposite of them.
+
 Built-in maps ship as package data in ``roadtwin_core/render/classmaps/`` and are loaded by
 name (``load_class_map("road_defects_br")``). Needs Python 3.11+ (``tomllib``) and numpy only.
 """
@@ -63,6 +68,7 @@ class ClassMap:
     source: str = "<class map>"                   # the file, for messages
     dilate_px: tuple[tuple[str, int], ...] = ()   # (dataset class, pixels) grown after mapping
     camera_targets: str | None = None             # camera targets (randomize.Ranges.from_targets) for --randomize
+    label_range_m: tuple[tuple[str, float], ...] = ()   # (dataset class, metres of z-depth) labelled up to
 
     @property
     def labels(self) -> list[str]:
@@ -118,6 +124,22 @@ class ClassMap:
             out = np.where(ego, inside[idx], out)
         return out
 
+
+    def within_range(self, mapped: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """``mapped`` with the ``label_range_m`` classes' pixels deeper than their range set to
+        ignore (255): a survey's annotators labelled defects only so far ahead (road_defects_br:
+        cracks within ~7 m, potholes within ~13 m of z-depth, bench/defect_priors.py), and a far
+        defect labelled where the real frames leave it unlabelled teaches the opposite of them.
+        Ignore, not background: the look of a far defect is neither taught nor untaught."""
+        if not self.label_range_m:
+            return mapped
+        depth = np.asarray(depth)
+        if depth.shape != mapped.shape:
+            raise RoadtwinError(f"depth shape {depth.shape} differs from the labels' {mapped.shape}")
+        out = mapped.copy()
+        for name, metres in self.label_range_m:
+            out[(mapped == self.classes.index(name)) & (depth > metres)] = IGNORE_INDEX
+        return out
 
     def spread(self, mapped: np.ndarray) -> np.ndarray:
         """Grow the ``dilate_px`` classes of mapped labels (dataset ids) by their radius, over
@@ -178,7 +200,7 @@ def parse_class_map(text: str, source: str = "<class map>") -> ClassMap:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise RoadtwinError(f"{source}: not valid TOML ({exc})") from None
-    known_keys = {"name", "classes", "unknown", "optional", "map", "dilate_px", "camera_targets"}
+    known_keys = {"name", "classes", "unknown", "optional", "map", "dilate_px", "camera_targets", "label_range_m"}
     extra = sorted(set(data) - known_keys)
     if extra:
         raise RoadtwinError(f"{source}: unknown key {extra[0]!r} (known: {', '.join(sorted(known_keys))})")
@@ -226,10 +248,19 @@ def parse_class_map(text: str, source: str = "<class map>") -> ClassMap:
             raise RoadtwinError(f"{source}: [dilate_px] entry {cls!r} is not one of the classes ({', '.join(classes)})")
         if not isinstance(px, int) or isinstance(px, bool) or not 0 <= px <= 16:
             raise RoadtwinError(f"{source}: [dilate_px] {cls} must be an integer number of pixels in 0..16, got {px!r}")
+    ranges = data.get("label_range_m", {})
+    if not isinstance(ranges, dict):
+        raise RoadtwinError(f"{source}: [label_range_m] must be a table of class = metres")
+    for cls, metres in ranges.items():
+        if cls not in classes:
+            raise RoadtwinError(f"{source}: [label_range_m] entry {cls!r} is not one of the classes ({', '.join(classes)})")
+        if not isinstance(metres, (int, float)) or isinstance(metres, bool) or not 0 < metres < 1e4:
+            raise RoadtwinError(f"{source}: [label_range_m] {cls} must be a distance in metres > 0, got {metres!r}")
     targets = data.get("camera_targets")
     if targets is not None and not (isinstance(targets, str) and targets):
         raise RoadtwinError(f"{source}: camera_targets must be the name or path of a camera targets file")
     return ClassMap(name=str(data.get("name", Path(source).stem)), classes=tuple(classes), plain=plain, ego=ego,
                     camera_targets=targets,
                     unknown=None if unknown == "ignore" else unknown, optional=frozenset(optional), source=source,
-                    dilate_px=tuple(sorted(dilate.items(), key=lambda kv: classes.index(kv[0]))))
+                    dilate_px=tuple(sorted(dilate.items(), key=lambda kv: classes.index(kv[0]))),
+                    label_range_m=tuple((c, float(m)) for c, m in sorted(ranges.items(), key=lambda kv: classes.index(kv[0]))))

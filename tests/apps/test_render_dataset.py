@@ -258,11 +258,54 @@ def test_view_share_through_the_command_and_targets_in_view(dataset, road):
     assert (out / "mmseg/img_dir/train/000000.jpg").exists()
 
 
+def test_views_aim_at_defects_within_the_asked_distance(road, pm, tmp_path):
+    """``defects:1:2.5-8``: every frame's target lies 2.5-8 m ahead in plan (a survey's measured
+    defect distances), against the defect's pose and the camera, not the sampler's own record."""
+    from roadtwin_core.usd.town_reader import load_town
+
+    out = tmp_path / "near"
+    run_render(road, out, RenderOptions(frames=6, rig="survey", size="64x40", views="defects:1:2.5-8", formats="mmseg",
+                                        executor="serial"), pm=pm)
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["render"]["poses"] == "defects:1.0:2.5-8"
+    pose = {d.id: d.attributes["poseXYYaw"] for d in load_town(road).defects}
+    for f in meta["frames"]:
+        c2w = np.array(f["cam_to_world"])
+        heading = c2w[:2, 2] / np.linalg.norm(c2w[:2, 2])          # the optical axis in plan
+        x, y, _ = pose[f["view"]["target"]]
+        ahead = float(np.dot(np.array([x, y]) - c2w[:2, 3], heading))
+        assert 2.5 - 1e-6 <= ahead <= 8.0 + 1e-6
+
+
+def test_label_range_leaves_far_defects_unlabelled(road, pm, tmp_path):
+    """A class map's [label_range_m] (how far ahead a survey's annotators labelled): no pothole
+    label deeper than its range in the written labels, read against the written depth, and the
+    far ones are ignore, not road."""
+    from importlib import resources
+
+    text = resources.files("roadtwin_core.render").joinpath("classmaps", "road_defects_br.toml").read_text()
+    cmap = tmp_path / "near.toml"
+    cmap.write_text(text.replace("pothole = 15.0", "pothole = 9.0"))
+    out = tmp_path / "near"
+    run_render(road, out, RenderOptions(frames=6, rig="survey", size="160x100", views="defects:1:5-25", classmap=str(cmap),
+                                        formats="mmseg,depth", executor="serial", seed=2), pm=pm)
+    meta = json.loads((out / "meta.json").read_text())
+    far_ignored = 0
+    for f in meta["frames"]:
+        lab = cv2.imread(str(out / f["files"]["semantic"]), cv2.IMREAD_UNCHANGED)
+        depth = np.load(out / f["files"]["depth"])
+        assert not ((lab == 3) & (depth > 9.0)).any()
+        far_ignored += int(((lab == 255) & (depth > 9.0)).sum())
+    assert far_ignored > 0
+
+
 def test_parse_views():
-    assert parse_views("random") == ("random", None, "uniform")
-    assert parse_views("defects:0.6") == ("defects", 0.6, "uniform")
-    assert parse_views("defects:1:clear") == ("defects", 1.0, "clear")
-    for bad in ("defects", "defects:1.5", "defects:0.5:sometimes", "all"):
+    assert tuple(parse_views("random")[:3]) == ("random", None, "uniform")
+    assert tuple(parse_views("defects:0.6")) == ("defects", 0.6, "uniform", (5.0, 25.0))
+    assert tuple(parse_views("defects:1:clear")[:3]) == ("defects", 1.0, "clear")
+    assert parse_views("defects:0.8:clear:2.5-12").distance_m == (2.5, 12.0)
+    assert parse_views("defects:0.8:3-9").distance_m == (3.0, 9.0)
+    for bad in ("defects", "defects:1.5", "defects:0.5:sometimes", "all", "defects:0.5:clear:12-3", "defects:0.5:4-4"):
         with pytest.raises(RoadtwinError, match="--views"):
             parse_views(bad)
 

@@ -79,6 +79,21 @@ def test_class_map_unknown_ignore_and_bad_maps(tmp_path):
         load_class_map("nope")
 
 
+def test_label_range_ignores_only_far_pixels_of_the_named_classes():
+    """[label_range_m]: crack pixels deeper than 8 m and pothole pixels deeper than 15 m become
+    ignore; nearer ones, other classes and pixels without a hit (depth 0) keep their class."""
+    m = parse_class_map('classes = ["bg", "lane", "crack", "hole"]\n[map]\nbg = ["background"]\ncrack = ["crack"]\n'
+                        'hole = ["pothole"]\n[label_range_m]\ncrack = 8\nhole = 15.0\n')
+    mapped = np.array([[2, 2, 3, 3, 1, 0]], np.uint8)
+    depth = np.array([[7.9, 8.1, 14.9, 15.1, 40.0, 0.0]], np.float32)
+    assert m.within_range(mapped, depth).tolist() == [[2, 255, 3, 255, 1, 0]]
+    assert load_class_map("road_defects_br").label_range_m == (("crack", 8.5), ("pothole", 15.0))
+    for text, word in [('classes = ["a"]\n[map]\na = ["x"]\n[label_range_m]\nb = 3\n', "'b'"),
+                       ('classes = ["a"]\n[map]\na = ["x"]\n[label_range_m]\na = -1\n', "metres > 0")]:
+        with pytest.raises(RoadtwinError, match=word):
+            parse_class_map(text, "f.toml")
+
+
 # ------------------------------------------------------------------------------ dataset folders
 def _write_pair(root: Path, stem: str, label: np.ndarray, img_ext=".jpg", sub=("images", "labels")):
     (root / sub[0]).mkdir(parents=True, exist_ok=True)

@@ -39,3 +39,16 @@ def test_photo_types_keep_only_the_named_types_and_every_nth_of_them(tmp_path):
     assert (tmp_path / "pot" / "a.geom.usda").exists() and not (tmp_path / "pot" / "b.geom.usda").exists()
     # a type the library lacks: no library at all (compose then runs without --library)
     assert ss.scene_library(lib, tmp_path / "none", 1, 0, ["patch"]) is None and not (tmp_path / "none").exists()
+
+
+def test_weighted_layout_sets_the_models_per_type_compose_reads(tmp_path):
+    """--models-per-type: the copied layout's rules hold it, read back by the layout reader compose uses."""
+    from roadtwin_core.usd.layout_io import read_layout
+
+    ss = _synthetic_set()
+    repo = Path(__file__).resolve().parents[2]
+    out = ss.weighted_layout(repo / "stages/highway.usda", tmp_path / "layout.usda", True, {"pothole": 12.0}, 16)
+    rules = read_layout(out).rules
+    assert rules.models_per_type == 16 and rules.type_weights["pothole"] == 12.0
+    assert rules.type_weights["oil_stain"] == ss.LOOKALIKE_WEIGHTS["oil_stain"]
+    assert read_layout(repo / "stages/highway.usda").rules.models_per_type == 6    # the source is untouched

@@ -26,6 +26,7 @@ from ...remesh import coarsen_defect
 from ...surface import parse_surface
 from ...town.markings import build_markings
 from ...town.props import DEFAULT_RULES as DEFAULT_PROP_RULES, PropRule, Props, load_prop_rules, place_props
+from ...town.param_priors import FieldPrior, apply_priors, load_priors
 from ...town.placement import ALONG_TRAVEL, lane_length_km, place_defects
 from ...usd.layout_io import read_layout
 from ...usd.library import ASSET_SUFFIXES, DEFECT_CLASS, library_asset_files, read_defect_asset, write_defect_asset
@@ -46,13 +47,15 @@ class ComposeResult:
     summary: dict
 
 
-def build_library(rules: ComposeRules, pm: PluginManager, runner=None) -> dict[str, list[DefectModel]]:
+def build_library(rules: ComposeRules, pm: PluginManager, runner=None,
+                  priors: dict[str, dict[str, FieldPrior]] | None = None) -> dict[str, list[DefectModel]]:
     """``models_per_type`` seeded models per weighted type (the paper draws 1,000 instances from
-    53 models); each model's randomness depends only on (seed, type, index). Each is coarsened to
+    53 models); each model's randomness depends only on (seed, type, index). ``priors``
+    (``--defect-priors``, :mod:`~roadtwin_core.town.param_priors`) redraw the parameters they name. Each is coarsened to
     the road mesh's edge length (:func:`~roadtwin_core.remesh.coarsen_defect`), the costly part:
     ``runner`` (a local executor) spreads the models over its cores."""
     items = [(t, k) for t in sorted(rules.type_weights) if rules.type_weights[t] > 0 for k in range(rules.models_per_type)]
-    models = (runner or SerialExecutor()).map(_library_model, (pm, rules), items)
+    models = (runner or SerialExecutor()).map(_library_model, (pm, rules, priors or {}), items)
     library: dict[str, list[DefectModel]] = {}
     for (t, _), model in zip(items, models):
         library.setdefault(t, []).append(model)
@@ -60,11 +63,14 @@ def build_library(rules: ComposeRules, pm: PluginManager, runner=None) -> dict[s
 
 
 def _library_model(context, item) -> DefectModel:
-    pm, rules = context
+    pm, rules, priors = context
     t, k = item
     dtype = pm.get("defect_types", t)
     rng = np.random.default_rng([rules.seed, sum(map(ord, t)), k])
     params = dtype.sample_params(rng)
+    if priors.get(t):   # their own generator: the type's other draws stay as without priors
+        params = apply_priors(params, priors[t], np.random.default_rng([rules.seed, sum(map(ord, t)), k, 1]),
+                              f"defect type {t}")
     # level of detail tied to the road mesh: ~3x fewer triangles, volume within 0.5 %
     return coarsen_defect(dtype.generate(params, rng, f"{t}_{k:02d}"), rules.road_edge_m)
 
@@ -121,8 +127,10 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
             library_dir: str | Path | None = None, merger_params: dict[str, Any] | None = None,
             texture_writer: Callable[[Path, int], dict] | None = None,
             props: str | Path | None = "default", road_textures: str | Path | None = None,
-            road_material: str | None = None) -> ComposeResult:
-    """``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's.
+            road_material: str | None = None, defect_priors: str | Path | None = None) -> ComposeResult:
+    """``defect_priors``: ``builtin:NAME`` or a TOML file of per-type parameter distributions
+    (:mod:`~roadtwin_core.town.param_priors`; ``builtin:road_defects_br`` is measured from that
+    dataset's train labels). ``merger_params``: values for the merger's ``Params`` (``--param``), checked like a layout's.
     ``props``: the roadside world (``layers/props.usda``): ``"default"`` (the built-in rules),
     ``"none"`` (no props layer) or a TOML rules file (:func:`resolve_prop_rules`).
     ``road_textures``: a folder of road materials (``roadtwin reconstruct photo-surfaces``), each
@@ -139,6 +147,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     t0 = time.perf_counter()
     prop_rules = resolve_prop_rules(props)   # a bad rules file: one line before any work
     road_looks = resolve_road_looks(road_textures, road_material)
+    priors = load_priors(defect_priors) if defect_priors is not None else ({}, None)
     preview_here = pm is not None
     with contextlib.ExitStack() as stack:
         # Started first: the helpers' interpreters boot while the layout is read.
@@ -162,7 +171,7 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
                                        else TexturePrefetch(rules.seed, texture_side, scratch_dir(outdir, "textures")))
         result = _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
                           executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir,
-                          prop_rules=prop_rules, road_looks=road_looks)
+                          prop_rules=prop_rules, road_looks=road_looks, priors=priors)
         for side in (texture_side, preview_side):    # what they printed, now that the run succeeded
             if side is not None:
                 side.replay_output()
@@ -205,12 +214,13 @@ class _HereOrThere:
 def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules, pm: PluginManager, merger_impl,
              report, textures: TexturePrefetch | TexturesNow, previewer: _HereOrThere | None, t0: float, *,
              executor: str, ray_address, workers, library_dir,
-             prop_rules: tuple[PropRule, ...] = (), road_looks: RoadLooks = RoadLooks()) -> ComposeResult:
+             prop_rules: tuple[PropRule, ...] = (), road_looks: RoadLooks = RoadLooks(),
+             priors: tuple[dict, str | None] = ({}, None)) -> ComposeResult:
     runner = make_executor(executor, ray_address, workers)
     # Library and markings on the local cores only: a Ray map starts and stops a cluster, costing
     # more than they do.
     local = runner if runner.name == "local" else None
-    library = build_library(rules, pm, local) if rules.defect_count else {}
+    library = build_library(rules, pm, local, priors[0]) if rules.defect_count else {}
     if rules.library and rules.defect_count:
         folder = Path(library_dir) if library_dir else (layout_path.parent / rules.library)
         rules = add_library_folder(library, rules, folder)
@@ -287,6 +297,7 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
                             "textures_s": t_textures - t_markings, "write_s": t_written - t_textures,
                             "validate_s": t_write - t_written})
         summary["merger_params"] = merger_values
+        summary["defect_priors"] = priors[1]
         summary["markings"] = len(markings)
         summary["props"] = {"instances": props.count if props else 0, "by_rule": props.by_rule() if props else {}}
         if props and props.map_objects:    # only a layout with map objects (others: the same bytes as before)

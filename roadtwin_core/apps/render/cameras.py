@@ -17,7 +17,7 @@ from ...render import lane_keep_out, load_poses_file, sample_lane_poses
 from ...render.rig_usd import read_stage_cameras
 from ...render.view_sampler import ViewRig, chain_lanes, defect_targets, lane_ahead, sample_views
 from .lanes import nearest_lane
-from .options import Rig
+from .options import DEFECT_DISTANCE_M, Rig, ViewSpec
 
 __all__ = ["CameraPlan", "ego_lane_points", "plan_cameras", "with_ego_lanes"]
 
@@ -36,16 +36,15 @@ class CameraPlan:
 
 
 def plan_cameras(stage: Path, town, lanes: list, ground: Callable, rig: Rig, intrinsics, *, frames: int,
-                 poses: str | Path | None, view_kind: str, share: float | None, background: str, seed: int,
-                 min_clearance_m: float) -> CameraPlan:
+                 poses: str | Path | None, views: ViewSpec, seed: int, min_clearance_m: float) -> CameraPlan:
     """The cameras of ``frames`` frames. ``ground()``: the stage's ground sampler (built on first use)."""
     if poses is not None:
         pose_list = load_poses_file(poses)[:frames]
         _check_clearance(pose_list, ground(), str(poses), min_clearance_m)
         return CameraPlan(pose_list, str(poses), intrinsics, rig.stereo, rig.baseline_m)
-    if view_kind == "defects":
-        return _aimed_at_defects(stage, town, lanes, ground(), rig, intrinsics, frames, share, background, seed)
-    stage_cams = [] if view_kind != "none" else read_stage_cameras(
+    if views.kind == "defects":
+        return _aimed_at_defects(stage, town, lanes, ground(), rig, intrinsics, frames, views, seed)
+    stage_cams = [] if views.kind != "none" else read_stage_cameras(
         stage, (rig.width, rig.height_px) if rig.size_given else None)
     if rig.preset is not None:
         stage_cams = [c for c in stage_cams if c.rig == rig.preset.name]
@@ -75,17 +74,22 @@ def _check_clearance(pose_list, ground, source: str, min_clearance_m: float) -> 
                                 f"(minimum clearance {min_clearance_m} m)")
 
 
-def _aimed_at_defects(stage, town, lanes, ground, rig: Rig, intrinsics, frames, share, background, seed) -> CameraPlan:
+def _aimed_at_defects(stage, town, lanes, ground, rig: Rig, intrinsics, frames, views: ViewSpec, seed) -> CameraPlan:
     vrig = ViewRig(mount_height_m=rig.mount_height_m, hfov_deg=rig.hfov_deg, width_px=rig.width, height_px=rig.height_px,
                    **({"pitch_deg": rig.pitch_deg} if rig.pitch_deg is not None else {}))
     chained = chain_lanes(lanes)      # what view_sampler.stage_views does, without re-reading the stage
     if not chained:
         raise RoadtwinError(f"{stage}: no driving lane centrelines (roadtwin:segment:centerline) to place views on")
+    share, background = views.share, views.background
+    near_m, far_m = views.distance_m
     sampled = sample_views(chained, defect_targets(town), ground, frames, rig=vrig, share=share, seed=seed,
-                           background=background, keep_out=lane_keep_out(town))
+                           background=background, keep_out=lane_keep_out(town), near_m=near_m, far_m=far_m)
     by_id = {lane.id: lane for lane in chained}
     records = [{k: v for k, v in view.as_dict().items() if k not in ("index", "cam_to_world")} for view in sampled]
-    return CameraPlan([v.cam_to_world for v in sampled], f"defects:{share}" + (":clear" if background == "clear" else ""),
+    source = f"defects:{share}" + (":clear" if background == "clear" else "")
+    if views.distance_m != DEFECT_DISTANCE_M:
+        source += f":{near_m:g}-{far_m:g}"
+    return CameraPlan([v.cam_to_world for v in sampled], source,
                       intrinsics, rig.stereo, rig.baseline_m, records, [(by_id[v.lane_id], v.s_m) for v in sampled])
 
 

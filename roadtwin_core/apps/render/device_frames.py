@@ -81,7 +81,7 @@ def encode_device_frame(ctx: RenderContext, job: FrameJob, out: FrameOut) -> Fra
     t1 = time.perf_counter()
     names = list(ctx.mesh.classes)
     if ctx.class_map is not None:
-        out.frame.semantic = ctx.class_map.spread(out.frame.semantic)
+        out.frame.semantic = ctx.class_map.within_range(ctx.class_map.spread(out.frame.semantic), out.frame.depth)
         names = list(ctx.class_map.classes)
     labels = out.frame.semantic
     out.defect_share = {c: float((labels == names.index(c)).mean()) for c in DEFECT_CLASSES if c in names}

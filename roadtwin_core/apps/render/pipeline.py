@@ -163,5 +163,5 @@ def _labels(ctx: RenderContext, job: FrameJob, frame: Frame, left: Camera) -> tu
 
         surface = (frame.depth > 0) & (frame.semantic != 0) & (frame.semantic != 255)
         ego = ego_lane_mask(left, frame.depth, job.lane_xy, ctx.lane_width_m, surface=surface)
-    labels = ctx.class_map.spread(ctx.class_map.apply(frame.semantic, names, ego))
+    labels = ctx.class_map.within_range(ctx.class_map.spread(ctx.class_map.apply(frame.semantic, names, ego)), frame.depth)
     return labels, list(ctx.class_map.classes)

@@ -7,9 +7,9 @@
 
 Appearance is the stage's: the UsdPreviewSurface materials and textures bound to its meshes
 (``--material`` only picks a variant of the root's ``roadMaterial`` variant set, in memory).
-Cameras, first that applies: a ``--poses`` JSON file; ``--views defects:SHARE[:clear]`` (the
-view sampler: that share of frames aimed at a pothole or crack 5-25 m ahead, the rest along the
-lanes) or ``--views random`` (random lane poses, ``--height`` m above the road, yaw / pitch / roll
+Cameras, first that applies: a ``--poses`` JSON file; ``--views defects:SHARE[:clear][:NEAR-FAR]`` (the
+view sampler: that share of frames aimed at a pothole or crack NEAR-FAR m ahead, default 5-25, the
+rest along the lanes) or ``--views random`` (random lane poses, ``--height`` m above the road, yaw / pitch / roll
 jitter); the stage's ``UsdGeom.Camera`` prims (``roadtwin rig add``); random lane poses.
 ``--rig`` sets size, field of view, height, pitch and stereo baseline from a preset
 (``cameras.RIG_PRESETS``); explicit ``--size/--hfov/--height/--pitch/--baseline`` override it.
@@ -60,7 +60,7 @@ from ...render.scene_look import LookTable
 from ...warp_runtime import warp_device
 from .cameras import CameraPlan, ego_lane_points, plan_cameras, with_ego_lanes
 from .events import EventDrive, check_events
-from .options import MAX_FRAMES, RenderOptions, Rig, check_range, check_rig, parse_views, resolve_rig
+from .options import MAX_FRAMES, RenderOptions, Rig, ViewSpec, check_range, check_rig, parse_views, resolve_rig
 from .frame_sink import FrameSink, render_in_process
 from .pipeline import FrameJob, RenderContext, forget, render_chunk
 from .writers import DatasetWriter, available_formats, parse_formats
@@ -93,9 +93,7 @@ class CheckedOptions:
     """The options checked, and what they resolve to."""
 
     rig: Rig
-    view_kind: str                 # none | random | defects
-    share: float | None            # --views defects:SHARE
-    background: str                # uniform | clear
+    views: ViewSpec                # --views
     class_map: Any                 # classmap.ClassMap or None
     runner: Any                    # the executor
     drive: EventDrive | None       # --events
@@ -106,8 +104,8 @@ class CheckedOptions:
 def check_options(o: RenderOptions) -> CheckedOptions:
     """Every option checked (one line naming the option), before any file is read but the class map."""
     r = resolve_rig(o.rig, o.size, o.hfov, o.height, o.pitch, o.baseline, o.stereo)
-    view_kind, share, background = parse_views(o.views)
-    if o.poses is not None and view_kind != "none":
+    views = parse_views(o.views)
+    if o.poses is not None and views.kind != "none":
         raise RoadtwinError("give --poses or --views, not both")
     cmap = None
     if o.classmap is not None:
@@ -126,7 +124,7 @@ def check_options(o: RenderOptions) -> CheckedOptions:
     # a class map may name camera targets measured from its dataset's real frames (--randomize)
     ranges = Ranges.from_targets(cmap.camera_targets) if o.randomize and cmap is not None and cmap.camera_targets \
         else Ranges()
-    return CheckedOptions(r, view_kind, share, background, cmap, runner, drive, params, ranges)
+    return CheckedOptions(r, views, cmap, runner, drive, params, ranges)
 
 
 @dataclass
@@ -182,7 +180,7 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
     t0 = time.perf_counter()
     plan = plan_cameras(stage, scene.town, scene.lanes, scene.ground, r,
                         Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg), frames=o.frames, poses=o.poses,
-                        view_kind=checked.view_kind, share=checked.share, background=checked.background,
+                        views=checked.views,
                         seed=o.seed, min_clearance_m=params.min_clearance_m)
     known_formats = available_formats(pm.registry("dataset_formats"))
     fmt = parse_formats(o.formats, plan.stereo, known_formats)
