@@ -78,7 +78,7 @@ def measure(folder: Path, rig: str = "survey") -> dict[str, dict[str, np.ndarray
         for name, cid in CLASS_IDS.items():
             depths[name].append(zdepth[(label == cid) & np.isfinite(zdepth)])
             for m in instances(label, cid, JOIN_PX if name == "crack" else 0):
-                m &= np.isfinite(y)
+                m &= np.isfinite(y) & np.isfinite(area)    # the row below the horizon: no area
                 if m.sum() < MIN_PIXELS:
                     continue
                 pts = np.column_stack([x[m], y[m]]).astype(np.float32)

@@ -1,5 +1,5 @@
 """Defect parameter priors: per-type distributions of a parametric type's parameters, drawn in
-place of the type's own ``sample_params`` ranges (docs/architecture.md, "Defect types").
+place of the type's own ``sample_params`` ranges (docs/architecture.md, "Parameters").
 
 Why: a parametric type's ranges are a modeller's guess; a survey's labels say what its roads hold.
 The built-in ``road_defects_br`` priors are measured from that dataset's train labels through the
@@ -18,11 +18,15 @@ A priors file (TOML) holds, per type and parameter, one distribution and an opti
 
 Parameters a file does not name keep the type's own draw. Draws come from their own generator
 (seeded by the model's), so the type's other parameters are the same with and without priors.
+A prior must stay within its parameter's bounds whatever it draws (clip it): a tail that reached
+past them would fail only for some seeds. Drawn values go through ``apply_params`` like a
+layout's (an integer field takes the rounded draw).
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
@@ -32,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import RoadtwinError
+from ..params import apply_params
 
 __all__ = ["FieldPrior", "apply_priors", "load_priors"]
 
@@ -89,32 +94,58 @@ def _field_prior(entry: Any, where: str) -> FieldPrior:
         raise RoadtwinError(f"{where}: give exactly one of {' | '.join(KINDS)} (and optionally clip)")
     a, b = _pair(entry[kinds[0]], where)
     clip = _pair(entry.get("clip", [-math.inf, math.inf]), where)
+    if not (math.isfinite(a) and math.isfinite(b)) or math.isnan(clip[0]) or math.isnan(clip[1]):
+        raise RoadtwinError(f"{where}: {kinds[0]} needs finite numbers, got {a}, {b}")
     if kinds[0] == "lognormal" and not (a > 0 and b >= 0):
         raise RoadtwinError(f"{where}: lognormal needs median > 0 and sigma >= 0, got {a}, {b}")
-    if a > b and kinds[0] == "uniform" or clip[0] > clip[1]:
+    if (kinds[0] == "uniform" and a > b) or clip[0] > clip[1]:
         raise RoadtwinError(f"{where}: ranges must satisfy lo <= hi")
     return FieldPrior(kinds[0], a, b, clip)
 
 
 def _pair(value: Any, where: str) -> tuple[float, float]:
-    if not (isinstance(value, list) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value)):
+    if not (isinstance(value, list) and len(value) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
         raise RoadtwinError(f"{where}: expected two numbers, got {value!r}")
     return float(value[0]), float(value[1])
 
 
+def _reach(prior: FieldPrior) -> tuple[float, float]:
+    """The values a prior can draw: its distribution's support within its clip."""
+    lo, hi = (0.0, math.inf) if prior.kind == "lognormal" else (prior.a, prior.b)
+    return max(lo, prior.clip[0]), min(hi, prior.clip[1])
+
+
+def _check_field(f: dataclasses.Field, prior: FieldPrior, owner: str) -> type:
+    """The field's type (that of its default, as ``apply_params`` reads it); one line if the
+    field is not a number or the prior can draw outside its bounds."""
+    kind = type(f.default)
+    if f.default is dataclasses.MISSING or kind is bool or not issubclass(kind, numbers.Real):
+        raise RoadtwinError(f"{owner}: defect prior for {f.name}: the parameter is not a number")
+    lo, hi = _reach(prior)
+    lo_b, hi_b = f.metadata.get("lo"), f.metadata.get("hi")
+    if (lo_b is not None and lo < lo_b) or (hi_b is not None and hi > hi_b):
+        raise RoadtwinError(f"{owner}: defect prior for {f.name} draws {lo:g}..{hi:g}, beyond the parameter's "
+                            f"bounds {lo_b}..{hi_b} (give it a clip within them)")
+    return kind
+
+
 def apply_priors(params: Any, priors: dict[str, FieldPrior], rng: np.random.Generator, owner: str) -> Any:
     """``params`` (a type's Params dataclass) with the named fields redrawn from their priors, in
-    the order the dataclass lists them. A name the type lacks raises one line."""
+    the order the dataclass lists them, checked like a layout's values. A name the type lacks, a
+    field that is not a number and a prior reaching past the field's bounds raise one line."""
     if not priors:
         return params
-    names = [f.name for f in dataclasses.fields(params)]
+    fields = dataclasses.fields(params)
+    names = [f.name for f in fields]
     unknown = sorted(set(priors) - set(names))
     if unknown:
         raise RoadtwinError(f"{owner}: defect priors name parameters it does not have: {', '.join(unknown)} "
                             f"(it has {', '.join(names)})")
     changes = {}
-    for name in names:
-        if name in priors:
-            value = priors[name].draw(rng)
-            changes[name] = type(getattr(params, name))(round(value) if isinstance(getattr(params, name), int) else value)
-    return dataclasses.replace(params, **changes)
+    for f in fields:
+        if f.name in priors:
+            kind = _check_field(f, priors[f.name], owner)
+            value = priors[f.name].draw(rng)
+            changes[f.name] = round(value) if issubclass(kind, numbers.Integral) else value
+    return apply_params(params, changes, owner)

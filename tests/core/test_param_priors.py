@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from cli_run import one_line, run_cli
 from roadtwin_core import RoadtwinError, get_plugin_manager
 from roadtwin_core.apps.compose.run import build_library
 from roadtwin_core.model import ComposeRules
-from roadtwin_core.town.param_priors import apply_priors, load_priors
+from roadtwin_core.town.param_priors import FieldPrior, apply_priors, load_priors
 
 
 def write(tmp_path, text: str):
@@ -23,7 +24,9 @@ def write(tmp_path, text: str):
 
 
 def test_lognormal_draws_follow_the_closed_form(tmp_path):
-    priors, source = load_priors(write(tmp_path, 'source = "s"\n[pothole.radius_m]\nlognormal = [0.25, 0.8]\n'))
+    # the clip (the type's bounds) cuts 0.08 % below and 0.5 % above: within the KS test's tolerance
+    priors, source = load_priors(write(tmp_path, 'source = "s"\n[pothole.radius_m]\nlognormal = [0.25, 0.8]\n'
+                                                 'clip = [0.02, 2.0]\n'))
     assert source == "s"
     pothole = get_plugin_manager().get("defect_types", "pothole")
     rng = np.random.default_rng(3)
@@ -60,6 +63,9 @@ def test_builtin_road_defects_br_priors_hold_the_measured_pothole_sizes():
     ("[pothole.radius_m]\nlognormal = [-1, 0.5]\n", "median > 0"),
     ("[pothole.radius_m]\nuniform = [2, 1]\n", "lo <= hi"),
     ("[pothole.radius_m]\nuniform = [1]\n", "expected two numbers"),
+    ("[pothole.radius_m]\nuniform = [true, 1]\n", "expected two numbers"),
+    ("[pothole.radius_m]\nuniform = [0.1, inf]\n", "finite numbers"),
+    ("[pothole.radius_m]\nuniform = [0.1, 0.2]\nclip = [0.3, 0.2]\n", "lo <= hi"),
     ("[pothole\n", "not valid TOML"),
 ])
 def test_bad_priors_files_are_one_line(tmp_path, text, needle):
@@ -75,7 +81,40 @@ def test_a_parameter_the_type_lacks_is_named(tmp_path):
         build_library(rules, get_plugin_manager(), priors=priors)
 
 
+def test_an_integer_parameter_takes_the_rounded_draw():
+    crack = get_plugin_manager().get("defect_types", "crack")
+    rng = np.random.default_rng(1)
+    prior = {"branches": FieldPrior("uniform", 4.6, 5.4)}    # every draw rounds to 5
+    drawn = [apply_priors(crack.sample_params(rng), prior, rng, "t").branches for _ in range(50)]
+    assert all(type(b) is int and b == 5 for b in drawn)
+
+
+def test_a_prior_reaching_past_the_parameter_bounds_is_refused_whatever_the_seed(tmp_path):
+    """An unclipped lognormal can draw any radius > 0; the pothole's radius_m lies in 0.02..2.0.
+    Refused before any draw, not only for the seeds whose draw lands outside."""
+    priors, _ = load_priors(write(tmp_path, "[pothole.radius_m]\nlognormal = [0.25, 0.1]\n"))
+    rules = ComposeRules(type_weights={"pothole": 1.0}, models_per_type=1)
+    with pytest.raises(RoadtwinError, match=r"defect type pothole: defect prior for radius_m draws 0\.\.inf, beyond"):
+        build_library(rules, get_plugin_manager(), priors=priors)
+
+
+def test_a_parameter_that_is_not_a_number_is_refused():
+    @dataclass
+    class Params:
+        shape: str = "round"
+
+    with pytest.raises(RoadtwinError, match="t: defect prior for shape: the parameter is not a number"):
+        apply_priors(Params(), {"shape": FieldPrior("uniform", 0.0, 1.0)}, np.random.default_rng(0), "t")
+
+
 def test_compose_command_refuses_unknown_builtin_priors(tmp_path):
     r = run_cli("compose", "stages/highway.usda", "-o", tmp_path / "out", "--defect-priors", "builtin:nowhere")
     one_line(r, "--defect-priors", "nowhere", "road_defects_br")
+    assert not (tmp_path / "out").exists()
+
+
+def test_compose_names_a_priors_file_type_nobody_registered(tmp_path):
+    p = write(tmp_path, 'source = "mine.toml"\n[potholes.radius_m]\nuniform = [0.2, 0.3]\n')
+    r = run_cli("compose", "stages/highway.usda", "-o", tmp_path / "out", "--defect-priors", p)
+    one_line(r, str(p), "unknown defect types: potholes")
     assert not (tmp_path / "out").exists()

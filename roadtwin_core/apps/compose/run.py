@@ -154,6 +154,9 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
         texture_side = stack.enter_context(Sidecar()) if not texture_writer else None
         preview_side = stack.enter_context(Sidecar()) if preview and not preview_here else None
         pm = pm or get_plugin_manager()
+        unknown = sorted(set(priors[0]) - set(pm.registry("defect_types")))
+        if unknown:
+            raise RoadtwinError(f"{defect_priors}: defect priors for unknown defect types: {', '.join(unknown)}")
         previewer = _HereOrThere(preview_side, pm) if preview else None
         layout_path = Path(layout_path)
         layout = read_layout(layout_path)
