@@ -83,15 +83,16 @@ SCENES = (
 # lane at their period (docs/realism/README.md), a pattern no real road has.
 
 
-def parse_weights(text: str | None) -> dict[str, float]:
-    """``pothole=2,crack=12`` -> {"pothole": 2.0, "crack": 12.0} (defect-type weights of the rules)."""
+def parse_weights(text: str | None, option: str = "--weights") -> dict[str, float]:
+    """``pothole=2,crack=12`` -> {"pothole": 2.0, "crack": 12.0} (defect-type weights of the rules,
+    or --label-range's metres)."""
     weights = {}
     for item in filter(None, (text or "").split(",")):
         kind, _, value = item.partition("=")
         try:
             weights[kind.strip()] = float(value)
         except ValueError:
-            sys.exit(f"--weights: {item!r} is not TYPE=WEIGHT")
+            sys.exit(f"{option}: {item!r} is not NAME=NUMBER")
     return weights
 
 
@@ -240,13 +241,16 @@ def views(args) -> str:
 
 
 def class_map(args, work: Path) -> str:
-    """The real frames' class map; with --no-camera a copy without its measured camera targets."""
-    if not args.no_camera:
+    """The real frames' class map; with --no-camera a copy without its measured camera targets,
+    with --label-range a copy whose [label_range_m] leaves farther defects unlabelled."""
+    if not args.no_camera and not args.label_range:
         return "builtin:road_defects_br"
     from importlib import resources
     text = resources.files("roadtwin_core.render").joinpath("classmaps", "road_defects_br.toml").read_text()
-    kept = [line for line in text.splitlines() if not line.startswith("camera_targets")]
-    path = work / "classmap_no_camera.toml"
+    kept = [line for line in text.splitlines() if not (args.no_camera and line.startswith("camera_targets"))]
+    if args.label_range:
+        kept += ["", "[label_range_m]", *(f"{k} = {v}" for k, v in parse_weights(args.label_range, "--label-range").items())]
+    path = work / "classmap_variant.toml"
     path.write_text("\n".join(kept) + "\n")
     return str(path)
 
@@ -311,6 +315,8 @@ def main() -> None:
     ap.add_argument("--models-per-type", type=int, help="models a defect type per scene (default: the layout's)")
     ap.add_argument("--defect-distance", help="NEAR-FAR m: aimed defects this far ahead (render --views "
                     "defects:SHARE:clear:NEAR-FAR; the real train potholes lie 2.8-11.1 m ahead, 10th-90th percentile)")
+    ap.add_argument("--label-range", help="CLASS=M,...: defect pixels deeper than M m unlabelled (ignore), as the "
+                    "real annotators left them (bench/defect_priors.py: crack=8.5,pothole=15)")
     ap.add_argument("--no-lookalikes", action="store_true")
     ap.add_argument("--no-props", action="store_true")
     ap.add_argument("--no-photo", action="store_true")

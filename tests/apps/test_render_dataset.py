@@ -285,7 +285,7 @@ def test_label_range_leaves_far_defects_unlabelled(road, pm, tmp_path):
 
     text = resources.files("roadtwin_core.render").joinpath("classmaps", "road_defects_br.toml").read_text()
     cmap = tmp_path / "near.toml"
-    cmap.write_text(text.replace("pothole = 15.0", "pothole = 9.0"))
+    cmap.write_text(text + "\n[label_range_m]\ncrack = 8.5\npothole = 9.0\n")
     out = tmp_path / "near"
     run_render(road, out, RenderOptions(frames=6, rig="survey", size="160x100", views="defects:1:5-25", classmap=str(cmap),
                                         formats="mmseg,depth", executor="serial", seed=2), pm=pm)

@@ -87,7 +87,7 @@ def test_label_range_ignores_only_far_pixels_of_the_named_classes():
     mapped = np.array([[2, 2, 3, 3, 1, 0]], np.uint8)
     depth = np.array([[7.9, 8.1, 14.9, 15.1, 40.0, 0.0]], np.float32)
     assert m.within_range(mapped, depth).tolist() == [[2, 255, 3, 255, 1, 0]]
-    assert load_class_map("road_defects_br").label_range_m == (("crack", 8.5), ("pothole", 15.0))
+    assert load_class_map("road_defects_br").label_range_m == ()          # opt-in: the built-in map labels every distance
     for text, word in [('classes = ["a"]\n[map]\na = ["x"]\n[label_range_m]\nb = 3\n', "'b'"),
                        ('classes = ["a"]\n[map]\na = ["x"]\n[label_range_m]\na = -1\n', "metres > 0")]:
         with pytest.raises(RoadtwinError, match=word):

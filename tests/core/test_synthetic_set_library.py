@@ -52,3 +52,17 @@ def test_weighted_layout_sets_the_models_per_type_compose_reads(tmp_path):
     assert rules.models_per_type == 16 and rules.type_weights["pothole"] == 12.0
     assert rules.type_weights["oil_stain"] == ss.LOOKALIKE_WEIGHTS["oil_stain"]
     assert read_layout(repo / "stages/highway.usda").rules.models_per_type == 6    # the source is untouched
+
+
+def test_label_range_renders_with_a_class_map_copy_that_holds_it(tmp_path):
+    """--label-range crack=8.5,pothole=15: the class map the renders read leaves farther defects
+    unlabelled; without it the built-in map (no range) is used as it is."""
+    from argparse import Namespace
+
+    from roadtwin_core.render.classmap import load_class_map
+
+    ss = _synthetic_set()
+    assert ss.class_map(Namespace(no_camera=False, label_range=None), tmp_path) == "builtin:road_defects_br"
+    path = ss.class_map(Namespace(no_camera=False, label_range="crack=8.5,pothole=15"), tmp_path)
+    cmap = load_class_map(path)
+    assert cmap.label_range_m == (("crack", 8.5), ("pothole", 15.0)) and cmap.camera_targets == "road_defects_br"
