@@ -8,7 +8,9 @@ real crack strokes).
 Per folder: each class's share of all pixels, the frames holding >= 20 pixels of crack /
 pothole, and the median over those frames of 2A/P (area x 2 / boundary pixels, the width in
 px of a stroke; a filled blob of radius r gives ~r). Class ids are road_defects_br's
-(0 background, 1 ego lane, 2 crack, 3 pothole). Not a test.
+(0 background, 1 ego lane, 2 crack, 3 pothole). Not a test. ``--every N`` on a rendered set: pick N
+coprime to the aimed share's period (``--views defects:0.8`` aims 4 frames in every 5, spread evenly
+over the indices, so ``--every 5`` reads only the frames aimed at no defect).
 """
 from __future__ import annotations
 

@@ -14,7 +14,8 @@
 # `bench/perception.py frames`), beside the others, and the photo road surfaces SURFACES (default
 # LIB_surfaces) from the same frames; unset: /root/lib from every /root/photos/images/*.jpg and the
 # staged /root/photo_surfaces.
-# DISTANCE=NEAR-FAR (render phase): aimed defects that far ahead (bench/synthetic_set.py --defect-distance).
+# DISTANCE=NEAR-FAR (render phase): aimed defects that far ahead (bench/synthetic_set.py --defect-distance);
+# LABEL_RANGE=crack=8.5,pothole=15 (render phase): farther defect pixels unlabelled (--label-range).
 set -e -o pipefail
 FRAMES=${FRAMES:-4000}
 SSET=${SSET:-/root/sset}        # the output folder (one per variant of the ablation)
@@ -59,5 +60,5 @@ if [ "$phase" = compose ]; then
     --frames $FRAMES -o $SSET "$@"
 else
   python3 bench/synthetic_set.py --phase render --device cuda --frames $FRAMES --jobs ${JOBS:-5} --workers ${WORKERS:-3} \
-    ${DISTANCE:+--defect-distance $DISTANCE} -o $SSET --scenes "$@"
+    ${DISTANCE:+--defect-distance $DISTANCE} ${LABEL_RANGE:+--label-range $LABEL_RANGE} -o $SSET --scenes "$@"
 fi
