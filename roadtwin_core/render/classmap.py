@@ -188,6 +188,20 @@ def load_class_map(spec: str | Path) -> ClassMap:
     return parse_class_map(text, source=str(path))
 
 
+def _class_table(data: dict, key: str, unit: str, classes: list[str], source: str, valid, wanted: str) -> tuple:
+    """An optional ``[key]`` table of class = number, checked (one line naming the entry), as
+    (class, value) pairs in the classes' order."""
+    table = data.get(key, {})
+    if not isinstance(table, dict):
+        raise RoadtwinError(f"{source}: [{key}] must be a table of class = {unit}")
+    for cls, value in table.items():
+        if cls not in classes:
+            raise RoadtwinError(f"{source}: [{key}] entry {cls!r} is not one of the classes ({', '.join(classes)})")
+        if not valid(value):
+            raise RoadtwinError(f"{source}: [{key}] {cls} must be {wanted}, got {value!r}")
+    return tuple(sorted(table.items(), key=lambda kv: classes.index(kv[0])))
+
+
 def _names(value, what: str, source: str) -> list[str]:
     if isinstance(value, str):
         value = [value]
@@ -241,27 +255,16 @@ def parse_class_map(text: str, source: str = "<class map>") -> ClassMap:
     optional = data.get("optional", [])
     if optional:
         optional = _names(optional, "'optional'", source)
-    dilate = data.get("dilate_px", {})
-    if not isinstance(dilate, dict):
-        raise RoadtwinError(f"{source}: [dilate_px] must be a table of class = pixels")
-    for cls, px in dilate.items():
-        if cls not in classes:
-            raise RoadtwinError(f"{source}: [dilate_px] entry {cls!r} is not one of the classes ({', '.join(classes)})")
-        if not isinstance(px, int) or isinstance(px, bool) or not 0 <= px <= 16:
-            raise RoadtwinError(f"{source}: [dilate_px] {cls} must be an integer number of pixels in 0..16, got {px!r}")
-    ranges = data.get("label_range_m", {})
-    if not isinstance(ranges, dict):
-        raise RoadtwinError(f"{source}: [label_range_m] must be a table of class = metres")
-    for cls, metres in ranges.items():
-        if cls not in classes:
-            raise RoadtwinError(f"{source}: [label_range_m] entry {cls!r} is not one of the classes ({', '.join(classes)})")
-        if not isinstance(metres, (int, float)) or isinstance(metres, bool) or not 0 < metres < 1e4:
-            raise RoadtwinError(f"{source}: [label_range_m] {cls} must be a distance in metres > 0, got {metres!r}")
+    dilate = _class_table(data, "dilate_px", "pixels", classes, source,
+                          lambda v: isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 16,
+                          "an integer number of pixels in 0..16")
+    ranges = _class_table(data, "label_range_m", "metres", classes, source,
+                          lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < 1e4,
+                          "a distance in metres > 0")
     targets = data.get("camera_targets")
     if targets is not None and not (isinstance(targets, str) and targets):
         raise RoadtwinError(f"{source}: camera_targets must be the name or path of a camera targets file")
     return ClassMap(name=str(data.get("name", Path(source).stem)), classes=tuple(classes), plain=plain, ego=ego,
                     camera_targets=targets,
                     unknown=None if unknown == "ignore" else unknown, optional=frozenset(optional), source=source,
-                    dilate_px=tuple(sorted(dilate.items(), key=lambda kv: classes.index(kv[0]))),
-                    label_range_m=tuple((c, float(m)) for c, m in sorted(ranges.items(), key=lambda kv: classes.index(kv[0]))))
+                    dilate_px=dilate, label_range_m=tuple((c, float(m)) for c, m in ranges))
