@@ -56,9 +56,9 @@ def test_folder_stats_reads_shares_of_a_label_folder(tmp_path):
 
 def test_no_camera_class_map_drops_only_the_camera_targets(tmp_path):
     synthetic_set = _load("synthetic_set")
-    with_camera = load_class_map(synthetic_set.class_map(SimpleNamespace(no_camera=False), tmp_path)
+    with_camera = load_class_map(synthetic_set.class_map(SimpleNamespace(no_camera=False, label_range=None), tmp_path)
                                  .removeprefix("builtin:"))
-    without = load_class_map(synthetic_set.class_map(SimpleNamespace(no_camera=True), tmp_path))
+    without = load_class_map(synthetic_set.class_map(SimpleNamespace(no_camera=True, label_range=None), tmp_path))
     assert with_camera.camera_targets == "road_defects_br" and without.camera_targets is None
     assert without.classes == with_camera.classes
     assert (without.plain, without.ego, without.dilate_px) == (with_camera.plain, with_camera.ego, with_camera.dilate_px)
