@@ -3,7 +3,7 @@
 and ``render --views defects:SHARE:clear:NEAR-FAR`` take to make the twin's frames hold the
 defects the real frames hold (issue 22: the twin's defects came from parameters, not from reality).
 
-    .venv/bin/python bench/defect_priors.py ../shared/data/road_defects_br/train [--write roadtwin_core/town/defect_priors/road_defects_br.toml]
+    .venv/bin/python bench/defect_priors.py ../shared/data/road_defects_br/train [--write roadtwin_core/town/defect_priors/road_defects_br.toml] [--plot docs/realism/defect_priors.png]
 
 Each label image's pixels are back-projected through the survey rig (``render --rig survey``:
 height, pitch and field of view estimated from the train frames' lane labels, docs/survey_rig.md)
@@ -36,6 +36,7 @@ QUANTILES = (10, 25, 50, 75, 90)
 LABEL_RANGE_Q = 99
 MIN_POTHOLE_RADIUS_M = 0.08     # the pothole type's own draw starts at 0.10 m
 MIN_CRACK_EXTENT_M = 0.3        # and the crack's at 0.5 m
+FITTED = (("pothole", "radius_m", MIN_POTHOLE_RADIUS_M), ("crack", "extent_m", MIN_CRACK_EXTENT_M))
 
 
 def ground_maps(width: int, height: int, rig: str = "survey") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -101,11 +102,17 @@ def priors_toml(m: dict, source: str) -> str:
     joined networks' extent; clipped at their 2nd and 98th percentiles, and at least the smallest
     size the type's mesh holds on a road mesh."""
     rows = [f'source = "{source}"', ""]
-    for name, key, floor in (("pothole", "radius_m", MIN_POTHOLE_RADIUS_M), ("crack", "extent_m", MIN_CRACK_EXTENT_M)):
-        med, sig, lo, hi = lognormal_fit(m[name][key])
+    for name, key, floor in FITTED:
+        med, sig, lo, hi = fitted(m[name][key], floor)
         rows += [f"[{name}.{key}]   # {len(m[name][key])} instances; clip: 2nd-98th percentile, at least {floor} m",
-                 f"lognormal = [{med:.3f}, {sig:.3f}]", f"clip = [{max(lo, floor):.3f}, {hi:.3f}]", ""]
+                 f"lognormal = [{med:.3f}, {sig:.3f}]", f"clip = [{lo:.3f}, {hi:.3f}]", ""]
     return "\n".join(rows)
+
+
+def fitted(values: np.ndarray, floor: float) -> tuple[float, float, float, float]:
+    """The prior as written: the lognormal fit with its lower clip raised to ``floor``."""
+    med, sig, lo, hi = lognormal_fit(values)
+    return med, sig, max(lo, floor), hi
 
 
 def main() -> None:
@@ -113,6 +120,7 @@ def main() -> None:
     ap.add_argument("split", type=Path, help="a dataset split: labels/*.png (road_defects_br ids)")
     ap.add_argument("--rig", default="survey")
     ap.add_argument("--write", type=Path, help="write the fitted priors TOML here")
+    ap.add_argument("--plot", type=Path, help="write the figure here (real sizes and distances beside the priors)")
     args = ap.parse_args()
     m = measure(args.split, args.rig)
     print(f"| class | measure | instances | {' | '.join(f'q{q}' for q in QUANTILES)} | lognormal median, sigma |")
@@ -131,6 +139,10 @@ def main() -> None:
         args.write.parent.mkdir(parents=True, exist_ok=True)
         args.write.write_text(priors_toml(m, src))
         print(f"wrote {args.write}")
+    if args.plot:
+        from _defect_priors_figure import plot
+        fits = {(c, k): fitted(m[c][k], floor) for c, k, floor in FITTED}
+        print(f"wrote {plot(m, fits, args.plot)}")
 
 
 if __name__ == "__main__":
