@@ -27,10 +27,11 @@ def plot(m: dict, fits: dict, out: Path, aim_m: tuple[float, float] = (2.5, 8.0)
         real = m[name][key]
         bins = np.logspace(np.log10(max(real.min(), 0.02)), np.log10(real.max()), 40)
         med, sig, lo, hi = fits[(name, key)]
-        drawn = np.clip(med * np.exp(sig * rng.standard_normal(20000)), lo, hi)
+        drawn = med * np.exp(sig * rng.standard_normal(200000))
+        drawn = drawn[(drawn >= lo) & (drawn <= hi)][:20000]          # truncated, as the priors draw
         ax.hist(real, bins=bins, density=True, alpha=0.55, color="tab:blue", label=f"real train labels ({len(real)})")
         ax.hist(drawn, bins=bins, density=True, histtype="step", lw=2, color="tab:red",
-                label=f"--defect-priors: lognormal {med:.2f} m, sigma {sig:.2f}, clipped")
+                label=f"--defect-priors: lognormal {med:.2f} m, sigma {sig:.2f}, truncated")
         ax.axvspan(*OWN_RANGE_M[key], color="grey", alpha=0.25, label="the type's own draw (uniform)")
         ax.set(xscale="log", xlabel=label, ylabel="density")
         ax.legend(fontsize=8)

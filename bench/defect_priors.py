@@ -11,7 +11,7 @@ onto a flat road. Per instance (8-connected component; crack strokes joined by a
 ``JOIN_PX`` px first: a network is labelled as many strokes): its ground area, its equivalent radius
 sqrt(A / pi) (potholes), its extent (cracks: the longer side of the ground points' minimum-area
 rectangle) and its median distance ahead of the camera; per labelled pixel its z-depth. Prints
-the 10/25/50/75/90th percentiles, the fitted lognormal (median, sigma of the log; clip at the 2nd
+the 10/25/50/75/90th percentiles, the fitted lognormal (median, sigma of the log; drawn within the 2nd
 and 98th percentiles) and each class's label range (the z-depth within which 99 % of its labelled
 pixels lie: where the annotators stopped labelling, a class map's ``[label_range_m]``).
 ``--write`` stores the fit as a priors TOML (roadtwin_core/town/param_priors.py). Train labels
@@ -99,18 +99,18 @@ def lognormal_fit(v: np.ndarray) -> tuple[float, float, float, float]:
 def priors_toml(m: dict, source: str) -> str:
     """The fits as a priors file: the pothole type's ``radius_m`` from the potholes' equivalent
     radius, the crack type's ``extent_m`` (its trunk's length, the network's size) from the
-    joined networks' extent; clipped at their 2nd and 98th percentiles, and at least the smallest
-    size the type's mesh holds on a road mesh."""
+    joined networks' extent; drawn within their 2nd and 98th percentiles (truncated, not clipped:
+    no pile-up at the ends), and at least the smallest size the type's mesh holds on a road mesh."""
     rows = [f'source = "{source}"', ""]
     for name, key, floor in FITTED:
         med, sig, lo, hi = fitted(m[name][key], floor)
-        rows += [f"[{name}.{key}]   # {len(m[name][key])} instances; clip: 2nd-98th percentile, at least {floor} m",
-                 f"lognormal = [{med:.3f}, {sig:.3f}]", f"clip = [{lo:.3f}, {hi:.3f}]", ""]
+        rows += [f"[{name}.{key}]   # {len(m[name][key])} instances; drawn within the 2nd-98th percentile, at least {floor} m",
+                 f"lognormal = [{med:.3f}, {sig:.3f}]", f"truncate = [{lo:.3f}, {hi:.3f}]", ""]
     return "\n".join(rows)
 
 
 def fitted(values: np.ndarray, floor: float) -> tuple[float, float, float, float]:
-    """The prior as written: the lognormal fit with its lower clip raised to ``floor``."""
+    """The prior as written: the lognormal fit with its lower end raised to ``floor``."""
     med, sig, lo, hi = lognormal_fit(values)
     return med, sig, max(lo, floor), hi
 

@@ -12,7 +12,7 @@ A priors file (TOML) holds, per type and parameter, one distribution and an opti
     source = "where the numbers come from"
     [pothole.radius_m]
     lognormal = [0.25, 0.93]     # median, sigma of the log
-    clip = [0.08, 1.5]
+    truncate = [0.08, 1.5]       # drawn within (or clip = [...]: beyond set to the ends)
     [crack.extent_m]
     uniform = [0.5, 3.0]
 
@@ -28,6 +28,7 @@ import dataclasses
 import math
 import numbers
 import tomllib
+from statistics import NormalDist
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -46,16 +47,28 @@ KINDS = ("lognormal", "uniform")
 @dataclass(frozen=True)
 class FieldPrior:
     """One parameter's distribution: ``lognormal`` (median, sigma of the log) or ``uniform``
-    (lo, hi), then clipped to ``clip``."""
+    (lo, hi), then clipped to ``clip`` (values beyond it set to its ends) or, with ``truncate``,
+    drawn within it (the distribution's shape kept between the ends, no pile-up at them)."""
 
     kind: str
     a: float
     b: float
     clip: tuple[float, float] = (-math.inf, math.inf)
+    truncate: bool = False
 
     def draw(self, rng: np.random.Generator) -> float:
-        v = self.a * math.exp(self.b * rng.standard_normal()) if self.kind == "lognormal" else rng.uniform(self.a, self.b)
-        return float(min(max(v, self.clip[0]), self.clip[1]))
+        lo, hi = self.clip
+        if self.truncate and self.kind == "lognormal" and self.b > 0:
+            unit = NormalDist()
+            cdf = [unit.cdf((math.log(x) - math.log(self.a)) / self.b) if 0 < x < math.inf else float(x > 0)
+                   for x in (lo, hi)]
+            u = min(max(rng.uniform(cdf[0], cdf[1]), 1e-15), 1 - 1e-15)
+            v = self.a * math.exp(self.b * unit.inv_cdf(u))
+        elif self.truncate and self.kind == "uniform":
+            v = rng.uniform(max(self.a, lo), min(self.b, hi))
+        else:
+            v = self.a * math.exp(self.b * rng.standard_normal()) if self.kind == "lognormal" else rng.uniform(self.a, self.b)
+        return float(min(max(v, lo), hi))
 
 
 def load_priors(spec: str | Path) -> tuple[dict[str, dict[str, FieldPrior]], str]:
@@ -90,17 +103,20 @@ def load_priors(spec: str | Path) -> tuple[dict[str, dict[str, FieldPrior]], str
 
 def _field_prior(entry: Any, where: str) -> FieldPrior:
     kinds = [k for k in KINDS if isinstance(entry, dict) and k in entry]
-    if len(kinds) != 1 or set(entry) - {*KINDS, "clip"}:
-        raise RoadtwinError(f"{where}: give exactly one of {' | '.join(KINDS)} (and optionally clip)")
+    if len(kinds) != 1 or set(entry) - {*KINDS, "clip", "truncate"} or {"clip", "truncate"} <= set(entry):
+        raise RoadtwinError(f"{where}: give exactly one of {' | '.join(KINDS)} (and optionally clip or truncate)")
     a, b = _pair(entry[kinds[0]], where)
-    clip = _pair(entry.get("clip", [-math.inf, math.inf]), where)
+    truncate = "truncate" in entry
+    clip = _pair(entry.get("truncate" if truncate else "clip", [-math.inf, math.inf]), where)
     if not (math.isfinite(a) and math.isfinite(b)) or math.isnan(clip[0]) or math.isnan(clip[1]):
         raise RoadtwinError(f"{where}: {kinds[0]} needs finite numbers, got {a}, {b}")
     if kinds[0] == "lognormal" and not (a > 0 and b >= 0):
         raise RoadtwinError(f"{where}: lognormal needs median > 0 and sigma >= 0, got {a}, {b}")
     if (kinds[0] == "uniform" and a > b) or clip[0] > clip[1]:
         raise RoadtwinError(f"{where}: ranges must satisfy lo <= hi")
-    return FieldPrior(kinds[0], a, b, clip)
+    if truncate and (clip[0] >= clip[1] or (kinds[0] == "uniform" and (clip[0] >= b or clip[1] <= a))):
+        raise RoadtwinError(f"{where}: truncate must leave part of the distribution (lo < hi, overlapping it)")
+    return FieldPrior(kinds[0], a, b, clip, truncate)
 
 
 def _pair(value: Any, where: str) -> tuple[float, float]:

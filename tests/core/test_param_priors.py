@@ -118,3 +118,22 @@ def test_compose_names_a_priors_file_type_nobody_registered(tmp_path):
     r = run_cli("compose", "stages/highway.usda", "-o", tmp_path / "out", "--defect-priors", p)
     one_line(r, str(p), "unknown defect types: potholes")
     assert not (tmp_path / "out").exists()
+
+
+def test_truncated_lognormal_follows_the_closed_form_within_its_ends(tmp_path):
+    """``truncate``: the draws keep the lognormal's shape between the ends (KS against the
+    truncated closed form), none pile up at an end as ``clip`` makes them."""
+    priors, _ = load_priors(write(tmp_path, "[pothole.radius_m]\nlognormal = [0.25, 0.8]\ntruncate = [0.1, 1.2]\n"))
+    prior = priors["pothole"]["radius_m"]
+    rng = np.random.default_rng(11)
+    radii = np.array([prior.draw(rng) for _ in range(3000)])
+    base = stats.lognorm(s=0.8, scale=0.25)
+    lo, hi = base.cdf(0.1), base.cdf(1.2)
+    assert radii.min() >= 0.1 and radii.max() <= 1.2
+    assert stats.kstest(radii, lambda x: (base.cdf(x) - lo) / (hi - lo)).pvalue > 0.01
+    assert (radii == 0.1).sum() == 0 and (radii == 1.2).sum() == 0
+
+
+def test_clip_and_truncate_together_are_refused(tmp_path):
+    with pytest.raises(RoadtwinError, match="clip or truncate"):
+        load_priors(write(tmp_path, "[pothole.radius_m]\nlognormal = [0.25, 0.8]\nclip = [0.1, 1]\ntruncate = [0.1, 1]\n"))
