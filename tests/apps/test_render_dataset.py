@@ -305,7 +305,7 @@ def test_parse_views():
     assert tuple(parse_views("defects:1:clear")[:3]) == ("defects", 1.0, "clear")
     assert parse_views("defects:0.8:clear:2.5-12").distance_m == (2.5, 12.0)
     assert parse_views("defects:0.8:3-9").distance_m == (3.0, 9.0)
-    for bad in ("defects", "defects:1.5", "defects:0.5:sometimes", "all", "defects:0.5:clear:12-3", "defects:0.5:4-4"):
+    for bad in ("defects", "defects:1.5", "defects:0.5:sometimes", "all", "defects:0.5:clear:12-3", "defects:0.5:4-4", "defects:0.5:1-5000"):
         with pytest.raises(RoadtwinError, match="--views"):
             parse_views(bad)
 

@@ -15,6 +15,7 @@ __all__ = ["DEFECT_DISTANCE_M", "MAX_FRAMES", "RenderOptions", "Rig", "ViewSpec"
            "parse_views", "pick", "resolve_rig"]
 
 DEFECT_DISTANCE_M = (5.0, 25.0)      # an aimed defect's distance ahead of the camera (--views defects:SHARE)
+MAX_DEFECT_DISTANCE_M = 1000.0       # the renderer's default max_distance_m: nothing farther is drawn
 
 
 @dataclass
@@ -103,10 +104,11 @@ def parse_views(text: str | None) -> ViewSpec:
     if m:
         share = float(m.group(1))
         near, far = (float(m.group(3)), float(m.group(4))) if m.group(3) else DEFECT_DISTANCE_M
-        if 0.0 <= share <= 1.0 and 0.0 <= near < far:
+        if 0.0 <= share <= 1.0 and 0.0 <= near < far <= MAX_DEFECT_DISTANCE_M:
             return ViewSpec("defects", share, m.group(2) or "uniform", (near, far))
     raise RoadtwinError(f"--views must be random or defects:SHARE[:clear][:NEAR-FAR] with SHARE in 0..1 and "
-                        f"0 <= NEAR < FAR metres (e.g. defects:0.6 or defects:0.8:clear:2.5-12), got {text!r}")
+                        f"0 <= NEAR < FAR <= {MAX_DEFECT_DISTANCE_M:g} metres (e.g. defects:0.6 or defects:0.8:clear:2.5-12), "
+                        f"got {text!r}")
 
 
 def pick(explicit, preset_value, default):
