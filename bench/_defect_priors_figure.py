@@ -6,15 +6,20 @@ from pathlib import Path
 
 import numpy as np
 
-# the parametric types' own draws (plugins/roadtwin_defects: pothole.py, crack.py) and the
-# view sampler's default aim (render --views defects:SHARE)
-OWN_RANGE_M = {"radius_m": (0.10, 0.50), "extent_m": (0.5, 2.0)}
-DEFAULT_AIM_M = (5.0, 25.0)
+from roadtwin_core import get_plugin_manager
+from roadtwin_core.render.view_sampler import DEFECT_DISTANCE_M as DEFAULT_AIM_M   # render --views defects:SHARE
+
+
+def own_draws(defect_type: str, key: str, n: int = 5000) -> np.ndarray:
+    """``key`` of ``n`` parameter draws of the registered type (what compose draws without priors)."""
+    dtype = get_plugin_manager().get("defect_types", defect_type)
+    rng = np.random.default_rng(0)
+    return np.array([getattr(dtype.sample_params(rng), key) for _ in range(n)])
 
 
 def plot(m: dict, fits: dict, out: Path, aim_m: tuple[float, float] = (2.5, 8.0)) -> Path:
     """Three panels: pothole radius, crack network extent (real histogram, the fitted lognormal
-    drawn, the type's own uniform range shaded), distance ahead (real potholes and cracks, the
+    drawn, the registered type's own draws), distance ahead (real potholes and cracks, the
     default and the matched aim ranges shaded). ``fits``: {(class, key): (median, sigma, lo, hi)}."""
     import matplotlib
     matplotlib.use("Agg")
@@ -32,7 +37,8 @@ def plot(m: dict, fits: dict, out: Path, aim_m: tuple[float, float] = (2.5, 8.0)
         ax.hist(real, bins=bins, density=True, alpha=0.55, color="tab:blue", label=f"real train labels ({len(real)})")
         ax.hist(drawn, bins=bins, density=True, histtype="step", lw=2, color="tab:red",
                 label=f"--defect-priors: lognormal {med:.2f} m, sigma {sig:.2f}, truncated")
-        ax.axvspan(*OWN_RANGE_M[key], color="grey", alpha=0.25, label="the type's own draw (uniform)")
+        ax.hist(own_draws(name, key), bins=bins, density=True, histtype="step", lw=1.5, ls="--", color="grey",
+                label="the type's own draws (without priors)")
         ax.set(xscale="log", xlabel=label, ylabel="density")
         ax.legend(fontsize=8)
     ax = axes[2]

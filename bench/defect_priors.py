@@ -26,8 +26,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from roadtwin_core.render import Camera, Intrinsics, look_from
-from roadtwin_core.render.cameras import RIG_PRESETS
+from roadtwin_core.apps.reconstruct.inputs import photo_rig
+from roadtwin_photo.rectify import PhotoRig, pixel_ground_area
 
 CLASS_IDS = {"crack": 2, "pothole": 3}        # road_defects_br
 JOIN_PX = 21            # crack strokes this close (px at 512x320: ~0.1-0.2 m at 3-5 m ahead) are one network
@@ -41,19 +41,14 @@ FITTED = (("pothole", "radius_m", MIN_POTHOLE_RADIUS_M), ("crack", "extent_m", M
 
 def ground_maps(width: int, height: int, rig: str = "survey") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per pixel: ground (x across, y ahead) in metres on a flat road, the ground area it covers
-    (m^2) and its z-depth (m, what a class map's ``label_range_m`` limits); NaN above the horizon.
-    The camera looks along +y from the rig's height."""
-    p = RIG_PRESETS[rig]
-    cam = Camera(Intrinsics.from_fov(width, height, p.hfov_deg),
-                 look_from((0.0, 0.0, p.height_m), math.pi / 2, math.radians(p.pitch_deg)))
-    d, o = cam.rays()
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(d[..., 2] < -1e-9, -o[2] / d[..., 2], np.nan)
-    x, y = o[0] + t * d[..., 0], o[1] + t * d[..., 1]
-    # area of a pixel: |det| of the ground coordinates' Jacobian in pixel steps
-    xu, xv = np.gradient(x, axis=1), np.gradient(x, axis=0)
-    yu, yv = np.gradient(y, axis=1), np.gradient(y, axis=0)
-    return x, y, np.abs(xu * yv - xv * yu), t * (d @ cam.rotation[:, 2])
+    (m^2) and its z-depth (m, what a class map's ``label_range_m`` limits); NaN where the ray
+    misses the road. The photo reconstructor's own back-projection (``reconstruct photos --rig``)."""
+    r = PhotoRig(**photo_rig(rig))
+    u, v = (g.ravel() for g in np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64)))
+    xy, _ = r.backproject(u, v, width, height)              # the rig looks along +x, +y to its left
+    area = pixel_ground_area(u, v, r, width, height)
+    _, depth = r.project(xy, width, height)
+    return tuple(a.reshape(height, width) for a in (-xy[:, 1], xy[:, 0], area, depth))
 
 
 def instances(label: np.ndarray, class_id: int, join_px: int) -> list[np.ndarray]:

@@ -37,6 +37,7 @@ from .cameras import NO_KEEP_OUT, Camera, GroundFn, Intrinsics, KeepOut, Lane, l
 from .scene import stage_lanes
 
 TARGET_TYPES = ("pothole", "crack")
+DEFECT_DISTANCE_M = (5.0, 25.0)                # an aimed defect's distance ahead of the camera, by default
 WHEELBASE_HALF_M, TRACK_HALF_M = 1.3, 0.8     # as cameras.vehicle_height samples the road
 
 
@@ -233,8 +234,8 @@ def defect_targets(town) -> DefectTargets:
     return DefectTargets(ids, types, np.array(xy).reshape(-1, 2))
 
 
-def in_view(cam_to_world: np.ndarray, xy: np.ndarray, hfov_deg: float, near_m: float = 5.0,
-            far_m: float = 25.0) -> np.ndarray:
+def in_view(cam_to_world: np.ndarray, xy: np.ndarray, hfov_deg: float, near_m: float = DEFECT_DISTANCE_M[0],
+            far_m: float = DEFECT_DISTANCE_M[1]) -> np.ndarray:
     """Which plan points lie ``near..far`` m ahead along the camera's heading and within half
     the horizontal field of view of it (a plan-view test: roll and pitch are a few degrees)."""
     xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
@@ -278,7 +279,7 @@ def _is_targeted(i: int, share: float) -> bool:
 
 
 def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn, n: int, *, rig: ViewRig = ViewRig(),
-                 share: float = 0.7, seed: int = 0, jitter: Jitter = Jitter(), near_m: float = 5.0, far_m: float = 25.0,
+                 share: float = 0.7, seed: int = 0, jitter: Jitter = Jitter(), near_m: float = DEFECT_DISTANCE_M[0], far_m: float = DEFECT_DISTANCE_M[1],
                  target_types: Sequence[str] = TARGET_TYPES, max_lateral_m: float = 8.0, background: str = "uniform",
                  start: int = 0, max_tries: int = 60, keep_out: KeepOut = NO_KEEP_OUT) -> list[View]:
     """Frames ``start .. start + n - 1``: a ``share`` of them aimed at a random pothole or crack

@@ -9,13 +9,14 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from ...errors import RoadtwinError
+from ...render.frames import RenderParams
 from ...render.rig_usd import rig_preset
+from ...render.view_sampler import DEFECT_DISTANCE_M
 
 __all__ = ["DEFECT_DISTANCE_M", "MAX_FRAMES", "RenderOptions", "Rig", "ViewSpec", "check_range", "check_rig", "parse_size",
            "parse_views", "pick", "resolve_rig"]
 
-DEFECT_DISTANCE_M = (5.0, 25.0)      # an aimed defect's distance ahead of the camera (--views defects:SHARE)
-MAX_DEFECT_DISTANCE_M = 1000.0       # the renderer's default max_distance_m: nothing farther is drawn
+MAX_DEFECT_DISTANCE_M = RenderParams().max_distance_m      # nothing farther is drawn
 
 
 @dataclass
