@@ -184,14 +184,15 @@ class MeshHeights:
     ``cell_m`` is the grid pitch; by default the median triangle's XY extent (at least 5 cm),
     so a point meets a few candidates whatever the mesh's resolution."""
 
-    CHUNK = 2_000_000          # point-triangle candidate pairs tested at once (bounds memory)
+    CHUNK = 100_000            # point-triangle candidate pairs tested at once (their temporaries stay in cache)
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, cell_m: float | None = None):
         tri = np.asarray(vertices, dtype=np.float64)[np.asarray(faces, dtype=np.int64).reshape(-1, 3)]
         area = 0.5 * np.abs((tri[:, 1, 0] - tri[:, 0, 0]) * (tri[:, 2, 1] - tri[:, 0, 1])
                             - (tri[:, 1, 1] - tri[:, 0, 1]) * (tri[:, 2, 0] - tri[:, 0, 0]))
-        self.tri = np.ascontiguousarray(tri[area > 1e-12])
-        lo, hi = self.tri[:, :, :2].min(axis=1), self.tri[:, :, :2].max(axis=1)
+        tri = tri[area > 1e-12]
+        self.coef = _barycentric_table(tri)
+        lo, hi = tri[:, :, :2].min(axis=1), tri[:, :, :2].max(axis=1)
         if cell_m is None:
             cell_m = max(float(np.median((hi - lo).max(axis=1))), 0.05) if len(lo) else 1.0
         self.cell = float(cell_m)
@@ -201,7 +202,7 @@ class MeshHeights:
         self.ny = int(c1[:, 1].max()) + 2 if len(c1) else 1
         nx, ny = c1[:, 0] - c0[:, 0] + 1, c1[:, 1] - c0[:, 1] + 1
         count = nx * ny
-        owner = np.repeat(np.arange(len(self.tri)), count)
+        owner = np.repeat(np.arange(len(tri)), count)
         k = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)
         keys = (c0[owner, 0] + k % nx[owner]) * self.ny + c0[owner, 1] + k // nx[owner]
         order = np.argsort(keys, kind="stable")
@@ -210,7 +211,7 @@ class MeshHeights:
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         xy = np.atleast_2d(np.asarray(xy, dtype=np.float64))
         out = np.full(len(xy), np.nan)
-        if not len(xy) or not len(self.tri):
+        if not len(xy) or not len(self.coef):
             return out
         c = np.floor((xy - self.origin) / self.cell).astype(np.int64)
         ok = (c >= 0).all(axis=1) & (c[:, 1] < self.ny)
@@ -226,15 +227,24 @@ class MeshHeights:
         return out
 
     def _top(self, xy: np.ndarray, pi: np.ndarray, ti: np.ndarray, out: np.ndarray) -> None:
-        a, b, cc = self.tri[ti, 0], self.tri[ti, 1], self.tri[ti, 2]
+        k = self.coef[ti]
         p = xy[pi]
-        v0, v1, v2 = b[:, :2] - a[:, :2], cc[:, :2] - a[:, :2], p - a[:, :2]
-        den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
-        beta = (v2[:, 0] * v1[:, 1] - v1[:, 0] * v2[:, 1]) / den
-        gamma = (v0[:, 0] * v2[:, 1] - v2[:, 0] * v0[:, 1]) / den
-        inside = (beta >= -1e-9) & (gamma >= -1e-9) & (beta + gamma <= 1 + 1e-9)
-        z = a[:, 2] + beta * (b[:, 2] - a[:, 2]) + gamma * (cc[:, 2] - a[:, 2])
-        np.fmax.at(out, pi[inside], z[inside])
+        v2x, v2y = p[:, 0] - k[:, 0], p[:, 1] - k[:, 1]
+        beta = (v2x * k[:, 5] - k[:, 4] * v2y) / k[:, 6]
+        gamma = (k[:, 2] * v2y - v2x * k[:, 3]) / k[:, 6]
+        inside = np.nonzero((beta >= -1e-9) & (gamma >= -1e-9) & (beta + gamma <= 1 + 1e-9))[0]
+        k = k[inside]
+        np.fmax.at(out, pi[inside], k[:, 7] + beta[inside] * k[:, 8] + gamma[inside] * k[:, 9])
+
+
+def _barycentric_table(tri: np.ndarray) -> np.ndarray:
+    """Per triangle (T,3,3) what ``MeshHeights._top`` needs of it, computed once: the first
+    vertex's XY, the two edge vectors from it (XY), their cross product, its z and the two edges'
+    rise (T,10). The same operations as per point-triangle pair, so the heights are unchanged."""
+    a = tri[:, 0]
+    v0, v1 = tri[:, 1, :2] - a[:, :2], tri[:, 2, :2] - a[:, :2]
+    den = v0[:, 0] * v1[:, 1] - v1[:, 0] * v0[:, 1]
+    return np.column_stack([a[:, 0], a[:, 1], v0, v1, den, a[:, 2], tri[:, 1, 2] - a[:, 2], tri[:, 2, 2] - a[:, 2]])
 
 
 def triangle_min_angles(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -33,12 +33,12 @@ from typing import Sequence
 import numpy as np
 
 from ..errors import RoadtwinError
-from .cameras import NO_KEEP_OUT, Camera, GroundFn, Intrinsics, KeepOut, Lane, lane_keep_out, look_from, vehicle_height
+from .cameras import NO_KEEP_OUT, Camera, GroundFn, Intrinsics, KeepOut, Lane, lane_keep_out, look_from
 from .scene import stage_lanes
+from .view_draws import TRACK_HALF_M, WHEELBASE_HALF_M, clear_of, lane_spots, road_attitudes
 
 TARGET_TYPES = ("pothole", "crack")
 DEFECT_DISTANCE_M = (5.0, 25.0)                # an aimed defect's distance ahead of the camera, by default
-WHEELBASE_HALF_M, TRACK_HALF_M = 1.3, 0.8     # as cameras.vehicle_height samples the road
 
 
 @dataclass(frozen=True)
@@ -253,23 +253,9 @@ def in_view(cam_to_world: np.ndarray, xy: np.ndarray, hfov_deg: float, near_m: f
 # ------------------------------------------------------------------------------ sampling
 def road_attitude(ground: GroundFn, xy: np.ndarray, heading: float) -> tuple[float, float, float]:
     """Road height under the vehicle and the grade pitch / crossfall roll (radians) it puts on
-    a body-mounted camera; a missing side counts as level."""
-    c, s = math.cos(heading), math.sin(heading)
-    z = float(vehicle_height(ground, xy[None], np.array([heading]))[0])
-
-    def mean_at(points):
-        zz = ground(np.asarray(points, dtype=np.float64))
-        zz = zz[np.isfinite(zz)]
-        return float(zz.mean()) if len(zz) else math.nan
-
-    fw, lt = np.array([c, s]), np.array([-s, c])
-    front = mean_at([xy + WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt, xy + WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt])
-    back = mean_at([xy - WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt, xy - WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt])
-    left = mean_at([xy + WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt, xy - WHEELBASE_HALF_M * fw + TRACK_HALF_M * lt])
-    right = mean_at([xy + WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt, xy - WHEELBASE_HALF_M * fw - TRACK_HALF_M * lt])
-    pitch = math.atan2(front - back, 2 * WHEELBASE_HALF_M) if math.isfinite(front - back) else 0.0
-    roll = math.atan2(left - right, 2 * TRACK_HALF_M) if math.isfinite(left - right) else 0.0
-    return z, pitch, roll
+    a body-mounted camera; a missing side counts as level (one vehicle of ``road_attitudes``)."""
+    z, pitch, roll = road_attitudes(ground, np.asarray(xy, dtype=np.float64)[None], np.array([float(heading)]))
+    return float(z[0]), pitch[0], roll[0]
 
 
 def _is_targeted(i: int, share: float) -> bool:
@@ -299,10 +285,13 @@ def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn
         raise RoadtwinError(f"no {' or '.join(target_types)} lies within {max_lateral_m} m of a lane: "
                             f"cannot aim {share:.0%} of the views at defects")
     drawer = _ViewDrawer(lanes, targets, ground, rig, jitter, near_m, far_m, background, max_tries, keep_out)
+    frames = [_Frame(i, np.random.default_rng([seed, i]), share > 0 and _is_targeted(i, share))
+              for i in range(start, start + n)]
+    drawer.choose(frames)
     views = []
-    for i in range(start, start + n):
-        rng = np.random.default_rng([seed, i])
-        m, j, lane_i, s, target, seen = drawer.choose(i, rng, aimed=share > 0 and _is_targeted(i, share))
+    for frame in frames:
+        i = frame.index
+        m, j, lane_i, s, target, seen = frame.chosen
         lane = lanes[lane_i]
         seg = lane.segment_at(s) if isinstance(lane, ChainedLane) and lane.segments else lane.id
         views.append(View(i, Camera(intr, m), lane.id, seg, s, target,
@@ -360,9 +349,23 @@ class _Targets:
 
 
 @dataclass
+class _Frame:
+    """One frame's draws so far: its generator (``default_rng([seed, index])``), its role and
+    the last pose that passed (``_ViewDrawer.choose``'s tuple), ``done`` once its role is met."""
+
+    index: int
+    rng: np.random.Generator
+    aimed: bool
+    chosen: tuple | None = None
+    done: bool = False
+
+
+@dataclass
 class _ViewDrawer:
-    """One frame's random draws, in a fixed order per rng: the spot (lane and arc length), the
-    jittered camera there, and what it sees; redrawn until the frame's role is met."""
+    """The frames' random draws, in a fixed order per frame's rng: the spot (lane and arc length),
+    the jittered camera there, and what it sees; redrawn until the frame's role is met. Frames
+    draw in rounds, one try each, so that the geometry of a round's tries is computed together
+    (``view_draws``); a frame's own draws, and so its view, are those of trying it alone."""
 
     lanes: list[Lane]
     targets: _Targets
@@ -377,50 +380,63 @@ class _ViewDrawer:
 
     def __post_init__(self):
         self.lengths = np.array([l.length for l in self.lanes])
+        self.lane_p = self.lengths / self.lengths.sum()
 
-    def choose(self, i: int, rng, aimed: bool) -> tuple:
-        """(cam_to_world, jitter, lane index, s, target id or None, seen mask) of frame i."""
-        t = self.targets
-        chosen = None
+    def choose(self, frames: list[_Frame]) -> None:
+        """Sets each frame's ``chosen``: (cam_to_world, jitter, lane index, s, target id or None, seen mask)."""
+        active = list(frames)
         for _ in range(self.max_tries):
-            if aimed:
-                c = int(rng.integers(len(t.defect)))
-                lane_i = int(t.lane[c])
-                s = float(t.s[c]) - rng.uniform(self.near_m + 0.5, self.far_m - 0.5)
-                if s < WHEELBASE_HALF_M:
-                    continue
-            else:
-                lane_i = int(rng.choice(len(self.lanes), p=self.lengths / self.lengths.sum()))
-                s = float(rng.uniform(WHEELBASE_HALF_M, self.lanes[lane_i].length - WHEELBASE_HALF_M))
-            got = self.camera(rng, lane_i, s)
-            if got is None:
-                continue
-            m, j = got
-            seen = in_view(m, t.xy, self.rig.hfov_deg, self.near_m, self.far_m) if len(t.xy) else np.zeros(0, bool)
-            if aimed and not seen[t.defect[c]]:
-                continue
-            chosen = (m, j, lane_i, s, t.ids[t.defect[c]] if aimed else None, seen)
-            if aimed or self.background == "uniform" or not seen.any():
+            if not active:
                 break
-        if chosen is None:
-            what = ("aim a view at a defect" if aimed else
+            self._try([spot for spot in (self._spot(f) for f in active) if spot is not None])
+            active = [f for f in active if not f.done]
+        failed = next((f for f in frames if f.chosen is None), None)
+        if failed is not None:
+            what = ("aim a view at a defect" if failed.aimed else
                     "place a view on a lane (the road is missing under them, or vehicles stand there)")
-            raise RoadtwinError(f"view {i}: could not {what} in {self.max_tries} tries")
-        return chosen
+            raise RoadtwinError(f"view {failed.index}: could not {what} in {self.max_tries} tries")
 
-    def camera(self, rng, lane_i: int, s: float) -> tuple[np.ndarray, dict] | None:
-        """The rig on the road at ``s`` along the lane, jittered; None where there is no road or a
-        vehicle stands (``keep_out``)."""
+    def _spot(self, f: _Frame) -> tuple | None:
+        """A try's first draws: (frame, lane index, s, lateral offset, candidate); None when an
+        aimed spot falls before the lane's start (the try is spent)."""
+        t, rng = self.targets, f.rng
+        c = -1
+        if f.aimed:
+            c = int(rng.integers(len(t.defect)))
+            lane_i = int(t.lane[c])
+            s = float(t.s[c]) - rng.uniform(self.near_m + 0.5, self.far_m - 0.5)
+            if s < WHEELBASE_HALF_M:
+                return None
+        else:
+            lane_i = int(rng.choice(len(self.lanes), p=self.lane_p))
+            s = float(rng.uniform(WHEELBASE_HALF_M, self.lanes[lane_i].length - WHEELBASE_HALF_M))
+        return f, lane_i, s, rng.uniform(-self.jitter.lateral_m, self.jitter.lateral_m), c
+
+    def _try(self, spots: list[tuple]) -> None:
+        """One try of each spot's frame: the camera there (none where a vehicle stands or there is
+        no road), what it sees, and whether the frame's role is met."""
+        if not spots:
+            return
+        t = self.targets
+        heading, xy = lane_spots(self.lanes, np.array([sp[1] for sp in spots]), np.array([sp[2] for sp in spots]),
+                                 np.array([sp[3] for sp in spots]))
+        free = np.nonzero(clear_of(self.keep_out, xy))[0]
+        z, road_pitch, road_roll = road_attitudes(self.ground, xy[free], heading[free])
+        for k, zk, pk, rk in zip(free.tolist(), z.tolist(), road_pitch, road_roll):
+            if not math.isfinite(zk):
+                continue
+            f, lane_i, s, lat, c = spots[k]
+            m, j = self.camera(f.rng, xy[k], float(heading[k]), lat, (zk, pk, rk))
+            seen = in_view(m, t.xy, self.rig.hfov_deg, self.near_m, self.far_m) if len(t.xy) else np.zeros(0, bool)
+            if f.aimed and not seen[t.defect[c]]:
+                continue
+            f.chosen = (m, j, lane_i, s, t.ids[t.defect[c]] if f.aimed else None, seen)
+            f.done = f.aimed or self.background == "uniform" or not seen.any()
+
+    def camera(self, rng, xy: np.ndarray, heading: float, lat: float, road: tuple) -> tuple[np.ndarray, dict]:
+        """The rig jittered on the road at ``xy`` (``road``: height, pitch and roll there)."""
         jitter, rig = self.jitter, self.rig
-        lane = self.lanes[lane_i]
-        heading = float(lane.heading(np.array([s]), window=2.0)[0])
-        lat = rng.uniform(-jitter.lateral_m, jitter.lateral_m)
-        xy = lane.at(np.array([s]))[0] + lat * np.array([-math.sin(heading), math.cos(heading)])
-        if not self.keep_out.clear(xy):
-            return None
-        z, road_pitch, road_roll = road_attitude(self.ground, xy, heading)
-        if not math.isfinite(z):
-            return None
+        z, road_pitch, road_roll = road
         j = {"height_m": rng.uniform(-jitter.height_m, jitter.height_m),
              "pitch_deg": rng.uniform(-jitter.pitch_deg, jitter.pitch_deg),
              "roll_deg": rng.uniform(-jitter.roll_deg, jitter.roll_deg),
