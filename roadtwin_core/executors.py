@@ -9,6 +9,7 @@ forked workers inherit it, Ray workers get it through the object store.
 """
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -115,6 +116,17 @@ class RayExecutor:
                 if progress:
                     progress(k + 1, len(items))
                 yield value
+        finally:
+            if started:
+                ray.shutdown()
+
+    @contextlib.contextmanager
+    def cluster(self) -> Iterator[Any]:
+        """The ``ray`` module connected to the cluster (``address``, or a local one started here
+        and shut down on leaving), for work that schedules its own tasks (``apps/render/gpu_shards``)."""
+        ray, started = self._connect()
+        try:
+            yield ray
         finally:
             if started:
                 ray.shutdown()

@@ -21,10 +21,11 @@ from __future__ import annotations
 import multiprocessing
 import time
 from collections import deque
-from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, ThreadPoolExecutor, wait
 from dataclasses import dataclass, replace
 from typing import Callable
 
+from ...errors import RoadtwinError
 from .device_frames import encode_device_frame, finish_on_device, render_on_device
 from .pipeline import FrameJob, FrameOut, RenderContext, finish_frame, prepared_scene, render_views
 
@@ -57,6 +58,8 @@ class FrameSink:
             self.pool = ThreadPoolExecutor(self.workers, thread_name_prefix="render-finish")
         self.processes = processes
         self.pending: deque[Future] = deque()
+        self.early: dict[int, Future] = {}      # put_at: frames written before every earlier one came
+        self.shards: list[dict] = []            # gpu_shards: what each GPU's task rendered
         self.shares: list[dict] = []
         self.backend = self.device = None
         self.phases: dict[str, float] = {}
@@ -79,6 +82,17 @@ class FrameSink:
     def put_device(self, job: FrameJob, out: FrameOut) -> None:
         """A frame finished on the device (``device_frames``): encoded and written by the pool."""
         self._submit(_encode_and_write, job, out)
+
+    def put_at(self, k: int, out: FrameOut) -> None:
+        """Finished frame ``k``, arriving in any order (``gpu_shards``: one shard a GPU): written by
+        the pool now, committed once every earlier frame is. Blocks while too many writes run."""
+        self.early[k] = self.pool.submit(_write, k, out)
+        while len(self.shares) in self.early and self.early[len(self.shares)].done():
+            self.pending.append(self.early.pop(len(self.shares)))
+            self._commit_oldest()
+        running = [f for f in self.early.values() if not f.done()]
+        if len(running) > 2 * self.workers:
+            wait(running, return_when=FIRST_COMPLETED)
 
     def _submit(self, fn, *args) -> None:
         """Blocks while too many frames are in flight (memory stays bounded), committing the oldest."""
@@ -103,14 +117,18 @@ class FrameSink:
     def close(self) -> None:
         """Commit every frame still in flight, then stop the pool."""
         try:
-            while self.pending:
+            while self.pending or self.early:
+                if not self.pending:
+                    if len(self.shares) not in self.early:
+                        raise RoadtwinError(f"frame {len(self.shares)} was never rendered")
+                    self.pending.append(self.early.pop(len(self.shares)))
                 self._commit_oldest()
         finally:
             self.shutdown()
 
     def shutdown(self) -> None:
         global _SHARED
-        for fut in self.pending:
+        for fut in [*self.pending, *self.early.values()]:
             fut.cancel()
         self.pool.shutdown(wait=True)
         _SHARED = None

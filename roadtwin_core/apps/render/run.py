@@ -18,8 +18,9 @@ wear, verge and shoulder surfaces (applied by the renderer, ``scene_look``) and 
 (``apply_sensor``: blur, vignetting, exposure, noise, white balance, JPEG; images are the JPEG
 bytes); labels are untouched. ``--classmap`` maps the labels to a dataset's classes with the
 frame's ego lane (``ego_lane``) and grows thin classes (``[dilate_px]``). Frames are rendered in
-chunks on ``--executor`` (local pool, serial, Ray); frame i depends only on (seed, i), so every
-executor writes the same bytes. ``--events`` adds a continuous drive along one lane (``--speed``
+chunks on ``--executor`` (local pool, serial, Ray; Ray with a CUDA ``--device``: one shard of
+frames a GPU of the cluster, ``gpu_shards``); frame i depends only on (seed, i), so every
+executor writes the same bytes (on the same kind of device). ``--events`` adds a continuous drive along one lane (``--speed``
 m/s, ``--event-rate`` Hz, ``--event-frames`` frames) fed to the event camera simulator.
 Everything is checked before the output directory is touched (size, formats, weather, renderer,
 stage, poses, rig, views, class map) and the directory is written whole or not at all.
@@ -60,6 +61,7 @@ from ...render.scene_look import LookTable
 from ...warp_runtime import warp_device
 from .cameras import CameraPlan, ego_lane_points, plan_cameras, with_ego_lanes
 from .events import EventDrive, check_events
+from . import gpu_shards
 from .options import MAX_FRAMES, RenderOptions, Rig, ViewSpec, check_range, check_rig, parse_views, resolve_rig
 from .frame_sink import FrameSink, render_in_process
 from .pipeline import FrameJob, RenderContext, forget, render_chunk
@@ -265,6 +267,8 @@ def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedO
         "phase_timings_s": {k: round(v, 4) for k, v in {**frames.phases, **sink.phases}.items()},
     }
     summary["frames_per_s"] = round(len(plan.poses) / max(t_frames - t_setup, 1e-9), 3)
+    if sink.shards:        # --executor ray on GPUs: frames and card of each shard (gpu_shards)
+        summary["shards"] = sink.shards
     writer.finish({"render": summary})
     return summary
 
@@ -273,17 +277,22 @@ def _render_frames(runner, ctx: RenderContext, jobs: list, writer, workers: int 
     """Frames rendered, finished and written (``frame_sink``); returns the sink (per-frame
     defect pixel shares, backend, device, phase seconds). On a GPU device frames render in this
     process and ``workers`` forked processes (default: one a core but this one) finish and write
-    them; the serial executor does the same on ``workers`` threads (default 1); on the CPU,
-    chunks go to the executor's workers and come back finished, and threads write them."""
+    them; the serial executor does the same on ``workers`` threads (default 1); Ray on a GPU
+    device renders one shard a GPU of the cluster (``gpu_shards``) and threads write the frames
+    as they come; on the CPU, chunks go to the executor's workers and come back finished, and
+    threads write them."""
     report = progress or (lambda *_: None)
     n_cpu = os.cpu_count() or 1
     gpu = runner.name == "local" and _on_gpu(ctx.params.device)
+    sharded = runner.name == "ray" and gpu_shards.on_gpus(ctx.params.device)
     if gpu or runner.name == "serial":
         sink = FrameSink(ctx, writer, jobs, workers or (max(1, n_cpu - 1) if gpu else 1), gpu, report)
     else:
-        sink = FrameSink(ctx, writer, jobs, min(4, n_cpu), False, report)
+        sink = FrameSink(ctx, writer, jobs, max(2, min(8, n_cpu)) if sharded else min(4, n_cpu), False, report)
     try:
-        if gpu or runner.name == "serial":
+        if sharded:
+            gpu_shards.render_on_gpus(runner, ctx, jobs, sink)
+        elif gpu or runner.name == "serial":
             render_in_process(ctx, jobs, sink)
         else:
             n_workers = workers or n_cpu

@@ -1,0 +1,74 @@
+"""`--executor ray` on GPUs (issue 21): one contiguous shard of frames a GPU of the cluster.
+
+No GPU here: a local Ray cluster declares two fake GPUs and the sharded path is forced on the
+CPU device, so each shard's task renders on the CPU with its own ``CUDA_VISIBLE_DEVICES``. The
+reference is the serial executor's output (one process, frame i from (seed, i) alone).
+"""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from roadtwin_core import RoadtwinError
+from roadtwin_core.apps.render import RenderOptions, run_render
+from roadtwin_core.apps.render import gpu_shards
+from test_render_dataset import pm, road  # noqa: F401  (module fixtures: plugins, a composed road with defects)
+
+def _options(executor: str, **kw) -> RenderOptions:
+    return RenderOptions(frames=6, rig="survey", size="64x40", views="defects:0.5", randomize=True,
+                         classmap="builtin:road_defects_br", formats="mmseg", executor=executor, workers=2, seed=9,
+                         **kw)
+
+
+@pytest.fixture
+def ray_cluster(request):
+    """A local Ray cluster with ``request.param`` fake GPUs (shut down after the test)."""
+    ray = pytest.importorskip("ray")
+    if ray.is_initialized():
+        ray.shutdown()
+    ray.init(num_cpus=2, num_gpus=request.param, include_dashboard=False, log_to_driver=False,
+             logging_level="ERROR")
+    yield ray
+    ray.shutdown()
+
+
+@pytest.mark.slow                      # starts Ray, as test_render_dataset's Ray test
+@pytest.mark.parametrize("ray_cluster", [2], indirect=True)
+def test_frames_are_spread_over_the_gpus_with_the_bytes_of_one_process(road, pm, tmp_path, ray_cluster,
+                                                                       monkeypatch):
+    monkeypatch.setattr(gpu_shards, "on_gpus", lambda device: True)    # the CPU stands in for the cards
+    outs = {name: tmp_path / name for name in ("serial", "ray")}
+    summaries = {name: run_render(road, outs[name], _options(name), pm=pm) for name in outs}
+
+    shards = summaries["ray"]["shards"]
+    assert [(s["first"], s["frames"]) for s in shards] == [(0, 3), (3, 3)]
+    assert sorted(s["gpu"] for s in shards) == ["0", "1"]             # each task had its own card
+    assert "shards" not in summaries["serial"]
+
+    files = sorted(p.relative_to(outs["serial"]) for p in outs["serial"].rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(outs["ray"]) for p in outs["ray"].rglob("*") if p.is_file())
+    assert len([f for f in files if f.suffix in (".png", ".jpg")]) >= 12    # 6 frames: images and labels
+    for f in files:
+        a, b = (outs[n] / f for n in ("serial", "ray"))
+        if f.name == "meta.json":
+            assert json.loads(a.read_text())["frames"] == json.loads(b.read_text())["frames"]
+        else:
+            assert a.read_bytes() == b.read_bytes(), f
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("ray_cluster", [0], indirect=True)
+def test_gpu_device_on_a_cluster_without_gpus_is_one_line(road, pm, tmp_path, ray_cluster):
+    with pytest.raises(RoadtwinError) as err:
+        run_render(road, tmp_path / "o", _options("ray", device="cuda"), pm=pm)
+    message = str(err.value)
+    assert "\n" not in message and "--executor ray" in message and "--device cuda" in message, message
+    assert "no GPU" in message
+    assert not (tmp_path / "o").exists()
+
+
+def test_split_shards_is_contiguous_and_covers_every_frame():
+    assert gpu_shards.split_shards(7, 3) == [range(0, 2), range(2, 5), range(5, 7)]
+    assert gpu_shards.split_shards(2, 8) == [range(0, 1), range(1, 2)]
+    assert gpu_shards.split_shards(5, 1) == [range(0, 5)]
