@@ -13,6 +13,8 @@ import pytest
 from roadtwin_core import RoadtwinError
 from roadtwin_core.apps.render import RenderOptions, run_render
 from roadtwin_core.apps.render import gpu_shards
+from roadtwin_core.apps.render.writers import DatasetWriter
+from test_render_batch_writer import _frame, _tree, _writer
 from test_render_dataset import pm, road  # noqa: F401  (module fixtures: plugins, a composed road with defects)
 
 def _options(executor: str, **kw) -> RenderOptions:
@@ -44,6 +46,8 @@ def test_frames_are_spread_over_the_gpus_with_the_bytes_of_one_process(road, pm,
     shards = summaries["ray"]["shards"]
     assert [(s["first"], s["frames"]) for s in shards] == [(0, 3), (3, 3)]
     assert sorted(s["gpu"] for s in shards) == ["0", "1"]             # each task had its own card
+    assert [s["processes"] for s in shards] == [1, 1]                # 2 CPUs over 2 GPUs, one left: at least 1
+    assert "store" in summaries["ray"]["phase_timings_s"]             # files came as bytes from the tasks
     assert "shards" not in summaries["serial"]
 
     files = sorted(p.relative_to(outs["serial"]) for p in outs["serial"].rglob("*") if p.is_file())
@@ -72,3 +76,28 @@ def test_split_shards_is_contiguous_and_covers_every_frame():
     assert gpu_shards.split_shards(7, 3) == [range(0, 2), range(2, 5), range(5, 7)]
     assert gpu_shards.split_shards(2, 8) == [range(0, 1), range(1, 2)]
     assert gpu_shards.split_shards(5, 1) == [range(0, 5)]
+
+
+def test_frames_encoded_on_a_scratch_writer_are_the_files_the_writer_writes(tmp_path):
+    """What the GPU tasks' processes do (``DatasetWriter.encode`` on a scratch folder of their
+    own) and the driver then (``write_encoded``, ``commit``) gives the files, hard links and
+    records of frame-by-frame ``add``; frame 2's image comes as JPEG bytes, written unchanged."""
+    frames = [_frame(i) for i in range(5)]
+    jpeg = {2: b"\xff\xd8 not decoded \xff\xd9"}
+    one = _writer(tmp_path / "one")
+    for i, (f, rgb8) in enumerate(frames):
+        one.add(f, rgb8, jpeg.get(i), record={"i": i})
+    one.finish()
+    many = _writer(tmp_path / "many")
+    scratch = DatasetWriter(root=tmp_path / "scratch", **many.spec())
+    encoded = [scratch.encode(i, f, rgb8, jpeg.get(i)) for i, (f, rgb8) in reversed(list(enumerate(frames)))]
+    assert not [p for p in (tmp_path / "scratch").rglob("*") if p.is_file()]      # nothing left behind
+    assert all(e.written.frame.depth is None for e in encoded)                   # arrays did not travel
+    for e in reversed(encoded):
+        many.commit(many.write_encoded(e), {"i": e.written.index})
+    many.finish()
+    assert _tree(tmp_path / "one") == _tree(tmp_path / "many")
+    assert encoded[2].files["images/000002.jpg"] == jpeg[2]
+    for stem in ("000000.png", "000002.jpg"):
+        image, link = tmp_path / "many/images" / stem, tmp_path / "many/mmseg/img_dir/train" / stem
+        assert image.stat().st_ino == link.stat().st_ino                         # a hard link, as add makes

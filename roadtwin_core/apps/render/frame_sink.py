@@ -35,7 +35,7 @@ _SHARED: tuple | None = None        # (context, dataset writer): what finishing 
 
 
 @dataclass
-class _Device:
+class SceneDevice:
     """What ``finish_frame`` reads of a prepared scene (the scene itself stays in the main process)."""
 
     backend: str | None
@@ -72,7 +72,7 @@ class FrameSink:
             frame.face = None
             if not _SHARED[0].normals:
                 frame.normal = None
-        dev = _Device(getattr(scene, "backend", None), getattr(scene, "device", None))
+        dev = SceneDevice(getattr(scene, "backend", None), getattr(scene, "device", None))
         self._submit(_finish_and_write, job, (frame, t_render), dev)
 
     def put(self, out: FrameOut) -> None:
@@ -103,14 +103,14 @@ class FrameSink:
 
     # ----------------------------------------------------------------- out
     def _commit_oldest(self) -> None:
-        out, written, t_write = self.pending.popleft().result()
+        out, written, spent = self.pending.popleft().result()
         t0 = time.perf_counter()
         k = len(self.shares)
         self.writer.commit(written, {**self.jobs[k].record,
                                      "defect_share": {c: round(v, 6) for c, v in out.defect_share.items()}})
         self.shares.append(out.defect_share)
         self.backend, self.device = out.backend, out.device
-        for name, seconds in {**out.timings, "write": t_write, "commit": time.perf_counter() - t0}.items():
+        for name, seconds in {**out.timings, **spent, "commit": time.perf_counter() - t0}.items():
             self.phases[name] = self.phases.get(name, 0.0) + seconds
         self.report("render", len(self.shares), len(self.jobs))
 
@@ -134,7 +134,7 @@ class FrameSink:
         _SHARED = None
 
 
-def _finish_and_write(k: int, job: FrameJob, rendered: tuple, dev: _Device):
+def _finish_and_write(k: int, job: FrameJob, rendered: tuple, dev: SceneDevice):
     out = finish_frame(_SHARED[0], dev, job, rendered)
     return _write(k, out)
 
@@ -144,18 +144,23 @@ def _encode_and_write(k: int, job: FrameJob, out: FrameOut):
 
 
 def _write(k: int, out: FrameOut):
-    """Frame ``k``'s files; returns (the frame's records, what commit needs, seconds). Arrays
-    commit does not need are dropped here (from a worker process they would travel back)."""
+    """Frame ``k``'s files; returns (the frame's records, what commit needs, {phase: seconds}).
+    Arrays commit does not need are dropped here (from a worker process they would travel back).
+    Files that came encoded (``out.encoded``: ``gpu_shards``) are only stored ("store" seconds;
+    their encoding is the frame's "write")."""
     writer = _SHARED[1]
     t0 = time.perf_counter()
+    if out.encoded is not None:
+        if out.encoded.written.index != k:
+            raise RoadtwinError(f"frame {k} came encoded as frame {out.encoded.written.index}")
+        written = writer.write_encoded(out.encoded)
+        return replace(out, encoded=None), written, {"store": time.perf_counter() - t0}
     written = writer.write(k, out.frame, out.rgb8, out.image_bytes, out.rgb8_right, out.image_bytes_right)
     t_write = time.perf_counter() - t0
     if len(written.states) == len(writer.writers):      # no writer left for commit: no arrays needed
-        f = written.frame
-        written = replace(written, frame=replace(f, rgb=None, depth=None, normal=None, semantic=None, instance=None,
-                                                 face=None, rgb_right=None, disparity=None, occluded=None))
+        written = written.without_arrays()
     return replace(out, frame=None, rgb8=None, image_bytes=None, rgb8_right=None, image_bytes_right=None), \
-        written, t_write
+        written, {"write": t_write}
 
 
 def render_in_process(ctx: RenderContext, jobs: list[FrameJob], sink: FrameSink) -> None:

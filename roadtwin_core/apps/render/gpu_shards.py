@@ -6,29 +6,50 @@ scene upload. With ``--executor ray`` and a CUDA ``--device`` the frame jobs are
 contiguous shard per GPU of the cluster (``ray.cluster_resources()["GPU"]``) and each shard runs
 as one Ray generator task with ``num_gpus=1``: Ray sets the task's ``CUDA_VISIBLE_DEVICES`` to its
 card, so the task renders on ``cuda:0``. A task does what the local GPU path does for its shard:
-the scene prepared once, frames rendered in order and finished on the device when the renderer
-can (``device_frames``), else ``pipeline.finish_frame``; the finishing and JPEG encoding run on
-the task's threads. Finished frames stream back in small batches (``num_returns="streaming"``)
-and the driver writes each as it arrives (``FrameSink.put_at``: files on threads, frames
-committed in frame order). Frame ``i`` depends only on ``(seed, i)``, so the bytes are those of
-the local executor on the same kind of device. See docs/architecture.md (executors).
+it forks its finishing processes first (its node's cores shared out over the node's GPUs, one
+left for the task; forked before the scene goes to the card, as ``FrameSink`` does), then
+prepares the scene once and renders its frames in order, finished on the device when the
+renderer can (``device_frames``), else by ``pipeline.finish_frame`` in those processes. The
+processes also encode the frame's files (``DatasetWriter.encode``: JPEG, label and instance
+PNGs, COCO masks), so finished frames stream back (``num_returns="streaming"``, small batches)
+as file bytes, and the driver only stores them and commits in frame order (``FrameSink.put_at``).
+Python threads in the task or the driver would hold the GIL for that work (4x its seconds a
+frame). Frame ``i`` depends only on ``(seed, i)``, so the bytes are those of the local executor
+on the same kind of device. See docs/architecture.md (executors).
+
+The task asks Ray for one CPU only (``num_cpus=1``), though its processes use its share of the
+node's cores: Ray's CPUs are a scheduling count, and asking for a share would leave a task
+unscheduled on a cluster whose nodes declare fewer CPUs than that, or differ from one another.
 """
 from __future__ import annotations
 
+import ctypes
+import multiprocessing
 import os
+import shutil
+import signal
+import tempfile
+import time
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import replace
+from pathlib import Path
 from typing import Any, Iterator
 
 from ...errors import RoadtwinError
 from .device_frames import encode_device_frame, finish_on_device, render_on_device
+from .frame_sink import SceneDevice
 from .pipeline import FrameJob, FrameOut, RenderContext, finish_frame, prepared_scene, render_views
+from .writers import WRITERS, DatasetWriter
 
 __all__ = ["on_gpus", "render_on_gpus", "split_shards"]
 
 BATCH = 8                 # frames a streamed batch (a Ray object)
 AHEAD = 4                 # batches a task may stream ahead of the driver (object store memory stays bounded)
+
+_SHARD: dict | None = None          # what a task's finishing processes use (set before they fork)
+_WRITER: DatasetWriter | None = None    # a finishing process's own writer, on its scratch folder
 
 
 def on_gpus(device: str | None) -> bool:
@@ -48,23 +69,46 @@ def render_on_gpus(runner, ctx: RenderContext, jobs: list[FrameJob], sink) -> No
     """Every frame rendered by one Ray task a GPU and written through ``sink`` (``put_at``);
     ``sink.shards`` records what each task rendered, and where."""
     with runner.cluster() as ray:
-        resources = ray.cluster_resources()
-        n_gpus = int(resources.get("GPU", 0))
+        n_gpus = int(ray.cluster_resources().get("GPU", 0))
         if n_gpus < 1:
             where = runner.address or "the local Ray cluster"
             raise RoadtwinError(f"--executor ray with --device {ctx.params.device}: {where} has no GPU "
                                 f"(start its nodes with GPUs, or render with --device cpu)")
         shards = split_shards(len(jobs), n_gpus)
-        threads = max(1, int(resources.get("CPU", 1) // n_gpus))
         task = ray.remote(max_calls=1)(_render_shard).options(   # a fresh worker a shard: its own CUDA context
             num_gpus=1, num_cpus=1, num_returns="streaming", _generator_backpressure_num_objects=AHEAD)
-        ctx_ref = ray.put(_on_own_card(ctx))
-        gens = {task.remote(ctx_ref, [_on_own_card(jobs[i]) for i in r], threads): s for s, r in enumerate(shards)}
+        shared = ray.put({"ctx": _on_own_card(ctx), "writer": _writer_spec(sink.writer),
+                          "processes": _processes_per_gpu(ray)})
+        gens = {task.remote(shared, r.start, [_on_own_card(jobs[i]) for i in r]): s for s, r in enumerate(shards)}
         try:
             sink.shards = _collect(ray, gens, shards, sink)
         finally:
             for gen in gens:
                 ray.cancel(gen, force=True)
+
+
+def _processes_per_gpu(ray) -> dict[str, int]:
+    """Node id -> finishing processes of a GPU task there: the node's CPUs shared out over its
+    GPUs, one left for the task itself (at least one)."""
+    out = {}
+    for node in ray.nodes():
+        res = node.get("Resources", {})
+        if node.get("Alive") and res.get("GPU"):
+            out[node["NodeID"]] = max(1, int(res.get("CPU", 1) // res["GPU"]) - 1)
+    return out
+
+
+def _writer_spec(writer) -> dict | None:
+    """How the tasks' processes make the driver's dataset writer on a scratch folder, or None
+    (they hand back arrays, the driver writes): only the core's formats are encoded there, so
+    the driver's writers must begin with those (plugins' come after: they run at commit, on
+    the frame's arrays)."""
+    if not isinstance(writer, DatasetWriter):
+        return None
+    core = [cls for name, cls in WRITERS.items() if name in writer.formats]
+    if [type(w) for w in writer.writers[:len(core)]] != core:
+        return None
+    return {"fields": writer.spec(), "keep_frame": len(writer.writers) > len(core)}
 
 
 def _collect(ray, gens: dict, shards: list[range], sink) -> list[dict]:
@@ -111,35 +155,105 @@ def _on_own_card(item):
     return item
 
 
-def _render_shard(ctx: RenderContext, jobs: list[FrameJob], threads: int) -> Iterator[Any]:
-    """The Ray task of one shard: first where it runs, then its finished frames in batches."""
+def _render_shard(shared: dict, first: int, jobs: list[FrameJob]) -> Iterator[Any]:
+    """The Ray task of one shard (frames ``first``...): first where it runs, then its finished
+    frames in batches."""
     import ray
 
+    node = ray.get_runtime_context().get_node_id()
+    n = shared["processes"].get(node, 1)
     yield {"gpu": os.environ.get("CUDA_VISIBLE_DEVICES"), "gpu_ids": [str(g) for g in ray.get_gpu_ids()],
-           "node": ray.get_runtime_context().get_node_id()}
+           "node": node, "processes": n}
     batch: list[FrameOut] = []
-    for out in _finished_frames(ctx, jobs, threads):
-        batch.append(out)
-        if len(batch) == BATCH:
-            yield batch
-            batch = []
+    with _finishing_pool(shared, n) as pool:        # forked before the scene goes to the card
+        for out in _finished_frames(shared["ctx"], first, jobs, pool, n):
+            batch.append(out)
+            if len(batch) == BATCH:
+                yield batch
+                batch = []
     if batch:
         yield batch
 
 
-def _finished_frames(ctx: RenderContext, jobs: list[FrameJob], threads: int) -> Iterator[FrameOut]:
+@contextmanager
+def _finishing_pool(shared: dict, n: int) -> Iterator[ProcessPoolExecutor]:
+    """``n`` forked processes that finish and encode frames, each writing on its own scratch
+    folder (in memory where ``/dev/shm`` is), removed afterwards."""
+    global _SHARD
+    scratch = Path(tempfile.mkdtemp(prefix="roadtwin-shard-", dir="/dev/shm" if os.access("/dev/shm", os.W_OK)
+                                    else None))
+    _SHARD = {"ctx": shared["ctx"], "writer": shared["writer"], "scratch": scratch}
+    pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"), initializer=_end_with_parent)
+    try:
+        pool.submit(int).result()         # fork every process now, before the device is touched
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+        shutil.rmtree(scratch, ignore_errors=True)
+        _SHARD = None
+
+
+def _end_with_parent() -> None:
+    """A finishing process ends with its task's process (a cancelled task's worker is killed;
+    its pool's processes would wait on their queue for ever). Linux only; elsewhere a no-op."""
+    try:
+        ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))     # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _finished_frames(ctx: RenderContext, first: int, jobs: list[FrameJob], pool: ProcessPoolExecutor,
+                     n: int) -> Iterator[FrameOut]:
     """What ``render_in_process`` does for the sink, here: frames rendered in order on this
-    process's device, finished (and JPEG-encoded) on ``threads`` threads, in frame order."""
+    process's device, finished and encoded by ``pool``'s ``n`` processes, in frame order."""
     scene, t_prepare = prepared_scene(ctx)
-    with ThreadPoolExecutor(threads, thread_name_prefix="shard-finish") as pool:
-        if finish_on_device(ctx, jobs, getattr(scene, "device", None)):
-            work = (pool.submit(encode_device_frame, ctx, job, out) for job, out in render_on_device(ctx, scene, jobs))
-        else:
-            work = (pool.submit(finish_frame, ctx, scene, job, render_views(ctx, scene, job)) for job in jobs)
-        for k, out in enumerate(_in_order(work, 2 * threads)):
-            if k == 0:
-                out.timings["prepare"] = t_prepare
-            yield out
+    if finish_on_device(ctx, jobs, getattr(scene, "device", None)):
+        work = (pool.submit(_encode_device, first + j, job, out)
+                for j, (job, out) in enumerate(render_on_device(ctx, scene, jobs)))
+    else:
+        dev = SceneDevice(getattr(scene, "backend", None), getattr(scene, "device", None))
+        work = (pool.submit(_finish, first + j, job, _travelling(ctx, render_views(ctx, scene, job)), dev)
+                for j, job in enumerate(jobs))
+    for k, out in enumerate(_in_order(work, 2 * n)):
+        if k == 0:
+            out.timings["prepare"] = t_prepare
+        yield out
+
+
+def _travelling(ctx: RenderContext, rendered: tuple) -> tuple:
+    """A rendered frame without what finishing drops anyway (it need not travel to a process)."""
+    frame, _ = rendered
+    frame.face = None
+    if not ctx.normals:
+        frame.normal = None
+    return rendered
+
+
+def _encode_device(k: int, job: FrameJob, out: FrameOut) -> FrameOut:
+    """In a finishing process: a device-finished frame ``k`` encoded (``encode_device_frame``), its files as bytes."""
+    return _encoded(k, encode_device_frame(_SHARD["ctx"], job, out))
+
+
+def _finish(k: int, job: FrameJob, rendered: tuple, dev: SceneDevice) -> FrameOut:
+    """In a finishing process: frame ``k`` finished on the CPU (``finish_frame``), its files as bytes."""
+    return _encoded(k, finish_frame(_SHARD["ctx"], dev, job, rendered))
+
+
+def _encoded(k: int, out: FrameOut) -> FrameOut:
+    """Frame ``k``'s files encoded by this process's writer (``out.encoded``), its arrays
+    dropped; unchanged when the driver's writer cannot take bytes."""
+    global _WRITER
+    spec = _SHARD["writer"]
+    if spec is None:
+        return out
+    if _WRITER is None:
+        _WRITER = DatasetWriter(root=_SHARD["scratch"] / f"p{os.getpid()}", **spec["fields"])
+    t0 = time.perf_counter()
+    encoded = _WRITER.encode(k, out.frame, out.rgb8, out.image_bytes, out.rgb8_right, out.image_bytes_right,
+                             keep_frame=spec["keep_frame"])
+    out.timings["write"] = time.perf_counter() - t0
+    return replace(out, frame=None, rgb8=None, image_bytes=None, rgb8_right=None, image_bytes_right=None,
+                   encoded=encoded)
 
 
 def _in_order(futures: Iterator, limit: int) -> Iterator:

@@ -71,6 +71,7 @@ class FrameOut:
     backend: str | None = None
     device: str | None = None
     timings: dict = field(default_factory=dict)        # phase -> seconds (prepare, render, sensor, labels)
+    encoded: Any = None                    # writers' EncodedFrame: the files already as bytes (gpu_shards)
 
 
 def _prepared(ctx: RenderContext):

@@ -25,7 +25,8 @@ each frame to the writers of the chosen formats (``registry.WRITERS``, one modul
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+import os
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Sequence
 
@@ -34,11 +35,11 @@ import numpy as np
 from ....errors import RoadtwinError
 from ....render import IGNORE_INDEX, Frame, Intrinsics, to_srgb8
 from .events import write_events
-from .images import (colorize_instances, colorize_labels, colorize_normals, colorize_scalar, palette,
+from .images import (colorize_instances, colorize_labels, colorize_normals, colorize_scalar, link, palette,
                      write_contact_sheet, write_image)
 from .registry import WRITERS
 
-__all__ = ["DatasetWriter", "WrittenFrame"]
+__all__ = ["DatasetWriter", "EncodedFrame", "WrittenFrame"]
 
 
 @dataclass
@@ -51,6 +52,24 @@ class WrittenFrame:
     files: dict
     states: list                 # per writer that wrote at write time: what its commit records
     thumbs: dict | None          # the contact sheet's row (first frames only)
+
+    def without_arrays(self) -> "WrittenFrame":
+        """This frame without its arrays: what commit needs once every writer wrote at write time
+        (from a worker process the arrays would travel back for nothing)."""
+        f = self.frame
+        return replace(self, frame=replace(f, rgb=None, depth=None, normal=None, semantic=None, instance=None,
+                                           face=None, rgb_right=None, disparity=None, occluded=None))
+
+
+@dataclass
+class EncodedFrame:
+    """A frame's files as bytes, encoded by another process (:meth:`DatasetWriter.encode`) and
+    written as they are by :meth:`DatasetWriter.write_encoded`: the writing process then only
+    writes bytes and commits (``gpu_shards``: the GPU tasks' worker processes encode)."""
+
+    written: WrittenFrame        # arrays dropped when every writer wrote at write time
+    files: dict[str, bytes]      # path relative to the dataset root -> the file's bytes
+    links: dict[str, str]        # hard link (relative path) -> the file it links to
 
 
 @dataclass
@@ -114,6 +133,43 @@ class DatasetWriter:
         states = [w.write(k, stem, frame, files) for w in self._parallel_writers()]
         thumbs = self._thumbs(frame, rgb8) if k < self.preview_frames else None
         return WrittenFrame(k, stem, frame, files, states, thumbs)
+
+    def spec(self) -> dict:
+        """What makes a writer of this dataset elsewhere (``DatasetWriter(root=scratch, **spec)``):
+        every field but the root and the plugins' formats (their writers run at commit here)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("root", "available")}
+
+    def encode(self, k: int, frame: Frame, rgb8: np.ndarray | None = None, image_bytes: bytes | None = None,
+               rgb8_right: np.ndarray | None = None, image_bytes_right: bytes | None = None,
+               keep_frame: bool = False) -> EncodedFrame:
+        """Frame ``k``'s files as bytes: :meth:`write` into this writer's root (a scratch folder of
+        one process, holding nothing else), read back and removed, so the bytes are those
+        :meth:`write` makes. ``keep_frame``: keep the arrays (writers that run at commit need them)."""
+        written = self.write(k, frame, rgb8, image_bytes, rgb8_right, image_bytes_right)
+        files: dict[str, bytes] = {}
+        links: dict[str, str] = {}
+        first: dict[tuple, str] = {}
+        for folder, _, names in sorted(os.walk(self.root)):
+            for name in sorted(names):
+                path = Path(folder) / name
+                rel = path.relative_to(self.root).as_posix()
+                st = path.stat()
+                if (st.st_dev, st.st_ino) in first:
+                    links[rel] = first[(st.st_dev, st.st_ino)]
+                else:
+                    first[(st.st_dev, st.st_ino)] = rel
+                    files[rel] = path.read_bytes()
+                path.unlink()
+        return EncodedFrame(written if keep_frame else written.without_arrays(), files, links)
+
+    def write_encoded(self, encoded: EncodedFrame) -> WrittenFrame:
+        """An :class:`EncodedFrame`'s files written as they are (hard links as links); returns
+        what :meth:`commit` records."""
+        for rel, data in encoded.files.items():
+            (self.root / rel).write_bytes(data)
+        for rel, target in encoded.links.items():
+            link(self.root / target, self.root / rel)
+        return encoded.written
 
     def _parallel_writers(self) -> list:
         """The writers whose files :meth:`write` makes: every one with a ``write``, up to the first without."""
