@@ -7,12 +7,14 @@ reference is the serial executor's output (one process, frame i from (seed, i) a
 from __future__ import annotations
 
 import json
+import time
 
 import pytest
 
 from roadtwin_core import RoadtwinError
 from roadtwin_core.apps.render import RenderOptions, run_render
 from roadtwin_core.apps.render import gpu_shards
+from roadtwin_core.apps.render.frame_sink import FrameSink
 from roadtwin_core.apps.render.writers import DatasetWriter
 from test_render_batch_writer import _frame, _tree, _writer
 from test_render_dataset import pm, road  # noqa: F401  (module fixtures: plugins, a composed road with defects)
@@ -37,9 +39,14 @@ def ray_cluster(request):
 
 @pytest.mark.slow                      # starts Ray, as test_render_dataset's Ray test
 @pytest.mark.parametrize("ray_cluster", [2], indirect=True)
+@pytest.mark.parametrize("same_filesystem", [True, False], ids=["in-place", "bytes"])
 def test_frames_are_spread_over_the_gpus_with_the_bytes_of_one_process(road, pm, tmp_path, ray_cluster,
-                                                                       monkeypatch):
+                                                                       monkeypatch, same_filesystem):
+    """The tasks share the driver's filesystem here; ``bytes``: the driver's token file never
+    appears (as for a task on another node), so the files must travel as bytes."""
     monkeypatch.setattr(gpu_shards, "on_gpus", lambda device: True)    # the CPU stands in for the cards
+    if not same_filesystem:
+        monkeypatch.setattr(gpu_shards, "_write_token", lambda path, token: None)
     outs = {name: tmp_path / name for name in ("serial", "ray")}
     summaries = {name: run_render(road, outs[name], _options(name), pm=pm) for name in outs}
 
@@ -47,7 +54,11 @@ def test_frames_are_spread_over_the_gpus_with_the_bytes_of_one_process(road, pm,
     assert [(s["first"], s["frames"]) for s in shards] == [(0, 3), (3, 3)]
     assert sorted(s["gpu"] for s in shards) == ["0", "1"]             # each task had its own card
     assert [s["processes"] for s in shards] == [1, 1]                # 2 CPUs over 2 GPUs, one left: at least 1
-    assert "store" in summaries["ray"]["phase_timings_s"]             # files came as bytes from the tasks
+    assert [s["direct"] for s in shards] == [same_filesystem] * 2
+    per_frame = {p.stat().st_ino: p.stat().st_size for p in outs["serial"].rglob("*")    # links once
+                 if p.is_file() and p.stem.isdigit()}                                  # 000000.png ...
+    streamed = [s["streamed_bytes"] for s in shards]
+    assert sum(streamed) == (0 if same_filesystem else sum(per_frame.values())), streamed
     assert "shards" not in summaries["serial"]
 
     files = sorted(p.relative_to(outs["serial"]) for p in outs["serial"].rglob("*") if p.is_file())
@@ -59,6 +70,26 @@ def test_frames_are_spread_over_the_gpus_with_the_bytes_of_one_process(road, pm,
             assert json.loads(a.read_text())["frames"] == json.loads(b.read_text())["frames"]
         else:
             assert a.read_bytes() == b.read_bytes(), f
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("ray_cluster", [2], indirect=True)
+def test_an_error_while_tasks_write_in_place_leaves_nothing(road, pm, tmp_path, ray_cluster, monkeypatch):
+    """The driver fails after frames were placed in its staging folder while the tasks still
+    write there: the tasks are stopped before the folder goes, so nothing is left."""
+    monkeypatch.setattr(gpu_shards, "on_gpus", lambda device: True)
+    put_at = FrameSink.put_at
+
+    def failing(sink, k, out):
+        if k == 4:
+            raise RoadtwinError("frame 4: disk full")
+        put_at(sink, k, out)
+
+    monkeypatch.setattr(FrameSink, "put_at", failing)
+    with pytest.raises(RoadtwinError, match="frame 4: disk full"):
+        run_render(road, tmp_path / "out/o", _options("ray"), pm=pm)
+    time.sleep(1.0)                            # a task still writing would show by now
+    assert not list((tmp_path / "out").iterdir())
 
 
 @pytest.mark.slow
@@ -101,3 +132,26 @@ def test_frames_encoded_on_a_scratch_writer_are_the_files_the_writer_writes(tmp_
     for stem in ("000000.png", "000002.jpg"):
         image, link = tmp_path / "many/images" / stem, tmp_path / "many/mmseg/img_dir/train" / stem
         assert image.stat().st_ino == link.stat().st_ino                         # a hard link, as add makes
+
+
+def test_frames_placed_in_the_committing_writers_folder_are_the_files_the_writer_writes(tmp_path):
+    """What the GPU tasks' processes do on the driver's filesystem (``DatasetWriter.place`` by
+    a writer of their own on the driver's folder, in any order) and the driver then
+    (``write_encoded``: nothing, ``commit``) gives the files, hard links and records of ``add``."""
+    frames = [_frame(i) for i in range(5)]
+    jpeg = {2: b"\xff\xd8 not decoded \xff\xd9"}
+    one = _writer(tmp_path / "one")
+    for i, (f, rgb8) in enumerate(frames):
+        one.add(f, rgb8, jpeg.get(i), record={"i": i})
+    one.finish()
+    many = _writer(tmp_path / "many")
+    elsewhere = DatasetWriter(root=tmp_path / "many", **many.spec())
+    placed = [elsewhere.place(i, f, rgb8, jpeg.get(i)) for i, (f, rgb8) in reversed(list(enumerate(frames)))]
+    assert all(p.placed and not p.files and not p.links for p in placed)        # no bytes to carry
+    assert all(p.written.frame.depth is None for p in placed)                    # nor arrays
+    for p in reversed(placed):
+        many.commit(many.write_encoded(p), {"i": p.written.index})
+    many.finish()
+    assert _tree(tmp_path / "one") == _tree(tmp_path / "many")
+    image, link = tmp_path / "many/images/000002.jpg", tmp_path / "many/mmseg/img_dir/train/000002.jpg"
+    assert image.read_bytes() == jpeg[2] and image.stat().st_ino == link.stat().st_ino

@@ -85,8 +85,14 @@ class FrameSink:
 
     def put_at(self, k: int, out: FrameOut) -> None:
         """Finished frame ``k``, arriving in any order (``gpu_shards``: one shard a GPU): written by
-        the pool now, committed once every earlier frame is. Blocks while too many writes run."""
-        self.early[k] = self.pool.submit(_write, k, out)
+        the pool now, committed once every earlier frame is. Blocks while too many writes run.
+        A frame whose files were placed in the writer's folder already (``EncodedFrame.placed``)
+        needs no writing: it is taken here, without the pool."""
+        if out.encoded is not None and out.encoded.placed:
+            self.early[k] = Future()
+            self.early[k].set_result(_write(k, out))
+        else:
+            self.early[k] = self.pool.submit(_write, k, out)
         while len(self.shares) in self.early and self.early[len(self.shares)].done():
             self.pending.append(self.early.pop(len(self.shares)))
             self._commit_oldest()
@@ -147,7 +153,7 @@ def _write(k: int, out: FrameOut):
     """Frame ``k``'s files; returns (the frame's records, what commit needs, {phase: seconds}).
     Arrays commit does not need are dropped here (from a worker process they would travel back).
     Files that came encoded (``out.encoded``: ``gpu_shards``) are only stored ("store" seconds;
-    their encoding is the frame's "write")."""
+    their encoding is the frame's "write"), or nothing when the task placed them already."""
     writer = _SHARED[1]
     t0 = time.perf_counter()
     if out.encoded is not None:

@@ -11,8 +11,13 @@ left for the task; forked before the scene goes to the card, as ``FrameSink`` do
 prepares the scene once and renders its frames in order, finished on the device when the
 renderer can (``device_frames``), else by ``pipeline.finish_frame`` in those processes. The
 processes also encode the frame's files (``DatasetWriter.encode``: JPEG, label and instance
-PNGs, COCO masks), so finished frames stream back (``num_returns="streaming"``, small batches)
-as file bytes, and the driver only stores them and commits in frame order (``FrameSink.put_at``).
+PNGs, COCO masks). Where the task shares the driver's filesystem (its processes read back a
+token file the driver made in its staging folder, the output's temporary) they write the files
+straight into that folder (``DatasetWriter.place``: the paths and hard links of ``write``), and
+only the frames' records stream back (``num_returns="streaming"``, small batches); elsewhere
+(a node without that folder) the files stream back as bytes and the driver stores them. The
+driver commits in frame order (``FrameSink.put_at``); on error the staging folder goes whole,
+as ever (``atomic_output_dir``), once the tasks are cancelled.
 Python threads in the task or the driver would hold the GIL for that work (4x its seconds a
 frame). Frame ``i`` depends only on ``(seed, i)``, so the bytes are those of the local executor
 on the same kind of device. See docs/architecture.md (executors).
@@ -26,13 +31,14 @@ from __future__ import annotations
 import ctypes
 import multiprocessing
 import os
+import secrets
 import shutil
 import signal
 import tempfile
 import time
 from collections import deque
 from concurrent.futures import ProcessPoolExecutor
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterator
@@ -77,14 +83,42 @@ def render_on_gpus(runner, ctx: RenderContext, jobs: list[FrameJob], sink) -> No
         shards = split_shards(len(jobs), n_gpus)
         task = ray.remote(max_calls=1)(_render_shard).options(   # a fresh worker a shard: its own CUDA context
             num_gpus=1, num_cpus=1, num_returns="streaming", _generator_backpressure_num_objects=AHEAD)
-        shared = ray.put({"ctx": _on_own_card(ctx), "writer": _writer_spec(sink.writer),
-                          "processes": _processes_per_gpu(ray)})
-        gens = {task.remote(shared, r.start, [_on_own_card(jobs[i]) for i in r]): s for s, r in enumerate(shards)}
-        try:
-            sink.shards = _collect(ray, gens, shards, sink)
-        finally:
-            for gen in gens:
-                ray.cancel(gen, force=True)
+        spec = _writer_spec(sink.writer)
+        with _offered_staging(sink.writer if spec else None) as staging:
+            shared = ray.put({"ctx": _on_own_card(ctx), "writer": spec and {**spec, "staging": staging},
+                              "processes": _processes_per_gpu(ray)})
+            gens = {task.remote(shared, r.start, [_on_own_card(jobs[i]) for i in r]): s
+                    for s, r in enumerate(shards)}
+            try:
+                sink.shards = _collect(ray, gens, shards, sink)
+            finally:
+                for gen in gens:
+                    ray.cancel(gen, force=True)
+                if gens:            # the staging folder is removed next: no task may write there then
+                    with suppress(Exception):       # the error that brought us here is the one to tell
+                        ray.wait([gen.completed() for gen in gens], num_returns=len(gens), timeout=30)
+
+
+@contextmanager
+def _offered_staging(writer) -> Iterator[dict | None]:
+    """The writer's folder (the output's staging folder) offered to the tasks: its path and a
+    token file made there, removed afterwards. A task whose processes read the token back
+    shares this filesystem and writes the frames' files in place (``_staging_writer``)."""
+    if writer is None:
+        yield None
+        return
+    root = Path(writer.root).resolve()
+    token = secrets.token_hex(16)
+    path = root / f".roadtwin-shard-token-{token[:8]}"
+    try:
+        _write_token(path, token)
+        yield {"root": str(root), "token_file": str(path), "token": token}
+    finally:
+        path.unlink(missing_ok=True)
+
+
+def _write_token(path: Path, token: str) -> None:
+    path.write_text(token)
 
 
 def _processes_per_gpu(ray) -> dict[str, int]:
@@ -126,9 +160,11 @@ def _collect(ray, gens: dict, shards: list[range], sink) -> list[dict]:
                 continue
             value = _get(ray, ref)
             if isinstance(value, dict):
-                info[s] = value
+                info[s] = {**value, "streamed_bytes": 0}
                 continue
             for out in value:
+                if out.encoded is not None:
+                    info[s]["streamed_bytes"] += sum(len(b) for b in out.encoded.files.values())
                 sink.put_at(nxt[s], out)
                 nxt[s] += 1
     for s, r in enumerate(shards):
@@ -162,10 +198,11 @@ def _render_shard(shared: dict, first: int, jobs: list[FrameJob]) -> Iterator[An
 
     node = ray.get_runtime_context().get_node_id()
     n = shared["processes"].get(node, 1)
+    direct = _staging_writer(shared["writer"])
     yield {"gpu": os.environ.get("CUDA_VISIBLE_DEVICES"), "gpu_ids": [str(g) for g in ray.get_gpu_ids()],
-           "node": node, "processes": n}
+           "node": node, "processes": n, "direct": direct is not None}
     batch: list[FrameOut] = []
-    with _finishing_pool(shared, n) as pool:        # forked before the scene goes to the card
+    with _finishing_pool(shared, n, direct) as pool:        # forked before the scene goes to the card
         for out in _finished_frames(shared["ctx"], first, jobs, pool, n):
             batch.append(out)
             if len(batch) == BATCH:
@@ -175,14 +212,29 @@ def _render_shard(shared: dict, first: int, jobs: list[FrameJob]) -> Iterator[An
         yield batch
 
 
+def _staging_writer(spec: dict | None) -> DatasetWriter | None:
+    """A writer on the driver's staging folder where this task sees the token the driver made
+    there (one filesystem; forked processes see what their task sees), else None (the files
+    travel as bytes)."""
+    staging = (spec or {}).get("staging")
+    if not staging:
+        return None
+    try:
+        seen = Path(staging["token_file"]).read_text() == staging["token"]
+    except OSError:
+        return None
+    return DatasetWriter(root=Path(staging["root"]), **spec["fields"]) if seen else None
+
+
 @contextmanager
-def _finishing_pool(shared: dict, n: int) -> Iterator[ProcessPoolExecutor]:
-    """``n`` forked processes that finish and encode frames, each writing on its own scratch
-    folder (in memory where ``/dev/shm`` is), removed afterwards."""
+def _finishing_pool(shared: dict, n: int, direct: DatasetWriter | None) -> Iterator[ProcessPoolExecutor]:
+    """``n`` forked processes that finish and encode frames: into ``direct``'s folder (the
+    driver's staging folder), else each on its own scratch folder (in memory where ``/dev/shm``
+    is), removed afterwards."""
     global _SHARD
     scratch = Path(tempfile.mkdtemp(prefix="roadtwin-shard-", dir="/dev/shm" if os.access("/dev/shm", os.W_OK)
                                     else None))
-    _SHARD = {"ctx": shared["ctx"], "writer": shared["writer"], "scratch": scratch}
+    _SHARD = {"ctx": shared["ctx"], "writer": shared["writer"], "scratch": scratch, "direct": direct}
     pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"), initializer=_end_with_parent)
     try:
         pool.submit(int).result()         # fork every process now, before the device is touched
@@ -240,17 +292,19 @@ def _finish(k: int, job: FrameJob, rendered: tuple, dev: SceneDevice) -> FrameOu
 
 
 def _encoded(k: int, out: FrameOut) -> FrameOut:
-    """Frame ``k``'s files encoded by this process's writer (``out.encoded``), its arrays
-    dropped; unchanged when the driver's writer cannot take bytes."""
+    """Frame ``k``'s files written in the driver's staging folder (``placed``) or encoded as
+    bytes by this process's scratch writer (``out.encoded``), its arrays dropped; unchanged
+    when the driver's writer cannot take them."""
     global _WRITER
     spec = _SHARD["writer"]
     if spec is None:
         return out
-    if _WRITER is None:
+    if _SHARD["direct"] is None and _WRITER is None:
         _WRITER = DatasetWriter(root=_SHARD["scratch"] / f"p{os.getpid()}", **spec["fields"])
     t0 = time.perf_counter()
-    encoded = _WRITER.encode(k, out.frame, out.rgb8, out.image_bytes, out.rgb8_right, out.image_bytes_right,
-                             keep_frame=spec["keep_frame"])
+    how = _WRITER.encode if _SHARD["direct"] is None else _SHARD["direct"].place
+    encoded = how(k, out.frame, out.rgb8, out.image_bytes, out.rgb8_right, out.image_bytes_right,
+                  keep_frame=spec["keep_frame"])
     out.timings["write"] = time.perf_counter() - t0
     return replace(out, frame=None, rgb8=None, image_bytes=None, rgb8_right=None, image_bytes_right=None,
                    encoded=encoded)

@@ -70,6 +70,7 @@ class EncodedFrame:
     written: WrittenFrame        # arrays dropped when every writer wrote at write time
     files: dict[str, bytes]      # path relative to the dataset root -> the file's bytes
     links: dict[str, str]        # hard link (relative path) -> the file it links to
+    placed: bool = False         # the files are already in the dataset's root (:meth:`DatasetWriter.place`)
 
 
 @dataclass
@@ -162,9 +163,19 @@ class DatasetWriter:
                 path.unlink()
         return EncodedFrame(written if keep_frame else written.without_arrays(), files, links)
 
+    def place(self, k: int, frame: Frame, rgb8: np.ndarray | None = None, image_bytes: bytes | None = None,
+              rgb8_right: np.ndarray | None = None, image_bytes_right: bytes | None = None,
+              keep_frame: bool = False) -> EncodedFrame:
+        """Frame ``k``'s files written by :meth:`write` straight into this writer's root, the
+        staging folder of the writer that commits them (another process's, on the same
+        filesystem): an :class:`EncodedFrame` without bytes, ``placed``, which that writer's
+        :meth:`write_encoded` only hands to commit. ``keep_frame`` as in :meth:`encode`."""
+        written = self.write(k, frame, rgb8, image_bytes, rgb8_right, image_bytes_right)
+        return EncodedFrame(written if keep_frame else written.without_arrays(), {}, {}, placed=True)
+
     def write_encoded(self, encoded: EncodedFrame) -> WrittenFrame:
-        """An :class:`EncodedFrame`'s files written as they are (hard links as links); returns
-        what :meth:`commit` records."""
+        """An :class:`EncodedFrame`'s files written as they are (hard links as links; nothing
+        when they were ``placed`` already); returns what :meth:`commit` records."""
         for rel, data in encoded.files.items():
             (self.root / rel).write_bytes(data)
         for rel, target in encoded.links.items():
