@@ -9,9 +9,11 @@ can starve the GPU.
 """
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import re
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,9 +66,16 @@ def load_frames(folder, size: tuple[int, int] | None, limit: int | None = None, 
     if not meta.exists():
         fr = load_frames(folder, size, limit)
         base.parent.mkdir(parents=True, exist_ok=True)
+        _check_room(folder, base.parent, fr.images.nbytes + fr.labels.nbytes)
         for name, arr in (("images", fr.images), ("labels", fr.labels)):
             tmp = base.parent / f"{base.name}_{name}.tmp.npy"
-            np.save(tmp, arr)
+            try:
+                np.save(tmp, arr)
+            except OSError as exc:
+                tmp.unlink(missing_ok=True)
+                if exc.errno != errno.ENOSPC:
+                    raise
+                _check_room(folder, base.parent, arr.nbytes, full=True)
             tmp.replace(base.parent / f"{base.name}_{name}.npy")
         tmp = meta.with_suffix(".tmp")
         tmp.write_text(json.dumps({"folder": str(folder), "stems": fr.stems}))
@@ -75,6 +84,16 @@ def load_frames(folder, size: tuple[int, int] | None, limit: int | None = None, 
     stems = json.loads(meta.read_text())["stems"]
     return Frames(np.load(base.parent / f"{base.name}_images.npy", mmap_mode="r"),
                   np.load(base.parent / f"{base.name}_labels.npy", mmap_mode="r"), stems, str(folder))
+
+
+def _check_room(folder: Path, cache: Path, need: int, full: bool = False) -> None:
+    """One line instead of numpy's OSError when the decoded copy of ``folder`` does not fit in
+    ``cache``: separate ``train`` runs each decode their own (20,000 frames at 512x320 are ~13 GB),
+    a ``suite`` decodes once for all its runs."""
+    free = shutil.disk_usage(cache).free
+    if full or need > free:
+        raise RoadtwinError(f"{folder}: its decoded frames need {need / 1e9:.1f} GB in {cache}, "
+                            f"{free / 1e9:.1f} GB free (runs of one table: `perception.py suite`, which decodes once)")
 
 
 def subset_indices(n: int, fraction: float, seed: int) -> np.ndarray:

@@ -336,3 +336,28 @@ def test_gains_plot_says_the_seeds_under_each_bar():
              "paste@10%": {"over": "real@10%", "seeds": [1, 3]}}
     assert seed_text(gains, "real@100%") == "seed 0"
     assert seed_text(gains, "real@10%") == "seeds 0, 1, 2, 3"
+
+
+def test_a_decoded_copy_that_does_not_fit_is_one_line_and_leaves_nothing(tmp_path, monkeypatch):
+    """Several `train` runs decoding a 20,000-frame set filled a 64 GB disk with numpy's OSError;
+    the cache check says which folder, how much and where, and leaves no partial file."""
+    _bench()                                         # puts bench/ on the path: its _perception_data module
+    data = sys.modules["_perception_data"]
+    synth = make_standin_synthetic(tmp_path / "synth")
+    need = 4 * 40 * 64 * 3 + 4 * 40 * 64           # four 64x40 frames: RGB + labels, uint8
+    monkeypatch.setattr(data.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(10**9, 10**9 - need + 1, need - 1))
+    with pytest.raises(data.RoadtwinError) as err:
+        data.load_frames(synth, (64, 40), cache=tmp_path / "cache")
+    msg = str(err.value)
+    assert "\n" not in msg and str(synth) in msg and "suite" in msg
+    assert not list((tmp_path / "cache").glob("*"))
+    monkeypatch.undo()                               # room, but the disk fills while writing (ENOSPC)
+    real_save = data.np.save
+
+    def full(path, arr):
+        real_save(path, arr[:1])
+        raise OSError(28, "No space left on device")
+    monkeypatch.setattr(data.np, "save", full)
+    with pytest.raises(data.RoadtwinError, match="suite"):
+        data.load_frames(synth, (64, 40), cache=tmp_path / "cache")
+    assert not list((tmp_path / "cache").glob("*.npy")) and not list((tmp_path / "cache").glob("*.json"))
