@@ -61,7 +61,7 @@ def render(
     renderer: str = typer.Option("warp", "--renderer", help="renderer plugin name"),
     device: Optional[str] = typer.Option(None, "--device", help="cpu | cuda | cuda:N (default: the renderer's)"),
     backend: str = typer.Option("auto", "--backend", help="ray caster: auto | warp | open3d (CPU)"),
-    executor: str = typer.Option("local", "--executor", help="local (process pool) | serial | ray"),
+    executor: str = typer.Option("local", "--executor", help="local (process pool) | serial | ray (with --device cuda: one shard of frames a GPU)"),
     workers: Optional[int] = typer.Option(None, "--workers", help="local: worker processes (default: all cores; on a "
                                           "GPU device the frame-finishing processes, default cores - 1); serial: threads"),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address (default: a local one)"),
