@@ -109,16 +109,23 @@ def test_split_shards_is_contiguous_and_covers_every_frame():
     assert gpu_shards.split_shards(5, 1) == [range(0, 5)]
 
 
-def test_frames_encoded_on_a_scratch_writer_are_the_files_the_writer_writes(tmp_path):
-    """What the GPU tasks' processes do (``DatasetWriter.encode`` on a scratch folder of their
-    own) and the driver then (``write_encoded``, ``commit``) gives the files, hard links and
-    records of frame-by-frame ``add``; frame 2's image comes as JPEG bytes, written unchanged."""
+def _written_one_by_one(tmp_path) -> tuple[list, dict]:
+    """Five frames (frame 2's image as JPEG bytes, written unchanged) written frame by frame with
+    ``add`` into ``tmp_path/one``: the reference the other writing paths must equal."""
     frames = [_frame(i) for i in range(5)]
     jpeg = {2: b"\xff\xd8 not decoded \xff\xd9"}
     one = _writer(tmp_path / "one")
     for i, (f, rgb8) in enumerate(frames):
         one.add(f, rgb8, jpeg.get(i), record={"i": i})
     one.finish()
+    return frames, jpeg
+
+
+def test_frames_encoded_on_a_scratch_writer_are_the_files_the_writer_writes(tmp_path):
+    """What the GPU tasks' processes do (``DatasetWriter.encode`` on a scratch folder of their
+    own) and the driver then (``write_encoded``, ``commit``) gives the files, hard links and
+    records of frame-by-frame ``add``; frame 2's image comes as JPEG bytes, written unchanged."""
+    frames, jpeg = _written_one_by_one(tmp_path)
     many = _writer(tmp_path / "many")
     scratch = DatasetWriter(root=tmp_path / "scratch", **many.spec())
     encoded = [scratch.encode(i, f, rgb8, jpeg.get(i)) for i, (f, rgb8) in reversed(list(enumerate(frames)))]
@@ -138,12 +145,7 @@ def test_frames_placed_in_the_committing_writers_folder_are_the_files_the_writer
     """What the GPU tasks' processes do on the driver's filesystem (``DatasetWriter.place`` by
     a writer of their own on the driver's folder, in any order) and the driver then
     (``write_encoded``: nothing, ``commit``) gives the files, hard links and records of ``add``."""
-    frames = [_frame(i) for i in range(5)]
-    jpeg = {2: b"\xff\xd8 not decoded \xff\xd9"}
-    one = _writer(tmp_path / "one")
-    for i, (f, rgb8) in enumerate(frames):
-        one.add(f, rgb8, jpeg.get(i), record={"i": i})
-    one.finish()
+    frames, jpeg = _written_one_by_one(tmp_path)
     many = _writer(tmp_path / "many")
     elsewhere = DatasetWriter(root=tmp_path / "many", **many.spec())
     placed = [elsewhere.place(i, f, rgb8, jpeg.get(i)) for i, (f, rgb8) in reversed(list(enumerate(frames)))]
