@@ -105,8 +105,7 @@ class RayExecutor:
 
     def imap(self, fn: Task, context: Any, items: Sequence[Any], progress: Progress | None = None) -> Iterator[Any]:
         """Results in item order (``ray.get`` of each task's reference in turn)."""
-        ray, started = self._connect()
-        try:
+        with self.cluster() as ray:
             ctx_ref = ray.put(context)
             remote = ray.remote(_ray_task)
             refs = [remote.remote(fn, ctx_ref, item) for item in items]
@@ -116,14 +115,12 @@ class RayExecutor:
                 if progress:
                     progress(k + 1, len(items))
                 yield value
-        finally:
-            if started:
-                ray.shutdown()
 
     @contextlib.contextmanager
     def cluster(self) -> Iterator[Any]:
         """The ``ray`` module connected to the cluster (``address``, or a local one started here
-        and shut down on leaving), for work that schedules its own tasks (``apps/render/gpu_shards``)."""
+        and shut down on leaving): what :meth:`imap` runs in, and work that schedules its own
+        tasks (``apps/render/gpu_shards``)."""
         ray, started = self._connect()
         try:
             yield ray

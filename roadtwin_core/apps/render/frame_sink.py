@@ -67,13 +67,10 @@ class FrameSink:
     # ----------------------------------------------------------------- in
     def finish(self, job: FrameJob, rendered: tuple, scene) -> None:
         """A rendered frame (:func:`render_views`): finished and written by the pool."""
-        frame, t_render = rendered
-        if self.processes:             # what finishing drops anyway need not travel
-            frame.face = None
-            if not _SHARED[0].normals:
-                frame.normal = None
+        if self.processes:
+            rendered = travelling(_SHARED[0], rendered)
         dev = SceneDevice(getattr(scene, "backend", None), getattr(scene, "device", None))
-        self._submit(_finish_and_write, job, (frame, t_render), dev)
+        self._submit(_finish_and_write, job, rendered, dev)
 
     def put(self, out: FrameOut) -> None:
         """A finished frame (from a renderer's worker): written by the pool."""
@@ -138,6 +135,16 @@ class FrameSink:
             fut.cancel()
         self.pool.shutdown(wait=True)
         _SHARED = None
+
+
+def travelling(ctx: RenderContext, rendered: tuple) -> tuple:
+    """A rendered frame (:func:`render_views`) without what finishing drops anyway (faces;
+    normals unless asked for): it need not travel to a finishing process."""
+    frame, _ = rendered
+    frame.face = None
+    if not ctx.normals:
+        frame.normal = None
+    return rendered
 
 
 def _finish_and_write(k: int, job: FrameJob, rendered: tuple, dev: SceneDevice):

@@ -45,7 +45,7 @@ from typing import Any, Iterator
 
 from ...errors import RoadtwinError
 from .device_frames import encode_device_frame, finish_on_device, render_on_device
-from .frame_sink import SceneDevice
+from .frame_sink import SceneDevice, travelling
 from .pipeline import FrameJob, FrameOut, RenderContext, finish_frame, prepared_scene, render_views
 from .writers import WRITERS, DatasetWriter
 
@@ -230,10 +230,12 @@ def _staging_writer(spec: dict | None) -> DatasetWriter | None:
 def _finishing_pool(shared: dict, n: int, direct: DatasetWriter | None) -> Iterator[ProcessPoolExecutor]:
     """``n`` forked processes that finish and encode frames: into ``direct``'s folder (the
     driver's staging folder), else each on its own scratch folder (in memory where ``/dev/shm``
-    is), removed afterwards."""
+    is; made only then), removed afterwards."""
     global _SHARD
-    scratch = Path(tempfile.mkdtemp(prefix="roadtwin-shard-", dir="/dev/shm" if os.access("/dev/shm", os.W_OK)
-                                    else None))
+    scratch = None
+    if shared["writer"] is not None and direct is None:
+        scratch = Path(tempfile.mkdtemp(prefix="roadtwin-shard-", dir="/dev/shm" if os.access("/dev/shm", os.W_OK)
+                                        else None))
     _SHARD = {"ctx": shared["ctx"], "writer": shared["writer"], "scratch": scratch, "direct": direct}
     pool = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"), initializer=_end_with_parent)
     try:
@@ -241,17 +243,16 @@ def _finishing_pool(shared: dict, n: int, direct: DatasetWriter | None) -> Itera
         yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
-        shutil.rmtree(scratch, ignore_errors=True)
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
         _SHARD = None
 
 
 def _end_with_parent() -> None:
     """A finishing process ends with its task's process (a cancelled task's worker is killed;
     its pool's processes would wait on their queue for ever). Linux only; elsewhere a no-op."""
-    try:
+    with suppress(OSError, AttributeError):
         ctypes.CDLL(None).prctl(1, int(signal.SIGKILL))     # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 def _finished_frames(ctx: RenderContext, first: int, jobs: list[FrameJob], pool: ProcessPoolExecutor,
@@ -264,21 +265,12 @@ def _finished_frames(ctx: RenderContext, first: int, jobs: list[FrameJob], pool:
                 for j, (job, out) in enumerate(render_on_device(ctx, scene, jobs)))
     else:
         dev = SceneDevice(getattr(scene, "backend", None), getattr(scene, "device", None))
-        work = (pool.submit(_finish, first + j, job, _travelling(ctx, render_views(ctx, scene, job)), dev)
+        work = (pool.submit(_finish, first + j, job, travelling(ctx, render_views(ctx, scene, job)), dev)
                 for j, job in enumerate(jobs))
     for k, out in enumerate(_in_order(work, 2 * n)):
         if k == 0:
             out.timings["prepare"] = t_prepare
         yield out
-
-
-def _travelling(ctx: RenderContext, rendered: tuple) -> tuple:
-    """A rendered frame without what finishing drops anyway (it need not travel to a process)."""
-    frame, _ = rendered
-    frame.face = None
-    if not ctx.normals:
-        frame.normal = None
-    return rendered
 
 
 def _encode_device(k: int, job: FrameJob, out: FrameOut) -> FrameOut:

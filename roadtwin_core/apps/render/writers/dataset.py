@@ -60,6 +60,11 @@ class WrittenFrame:
         return replace(self, frame=replace(f, rgb=None, depth=None, normal=None, semantic=None, instance=None,
                                            face=None, rgb_right=None, disparity=None, occluded=None))
 
+    def kept(self, keep_frame: bool) -> "WrittenFrame":
+        """This frame as it travels to the committing writer: with its arrays where writers that
+        run at commit need them (``keep_frame``), else :meth:`without_arrays`."""
+        return self if keep_frame else self.without_arrays()
+
 
 @dataclass
 class EncodedFrame:
@@ -161,7 +166,7 @@ class DatasetWriter:
                     first[(st.st_dev, st.st_ino)] = rel
                     files[rel] = path.read_bytes()
                 path.unlink()
-        return EncodedFrame(written if keep_frame else written.without_arrays(), files, links)
+        return EncodedFrame(written.kept(keep_frame), files, links)
 
     def place(self, k: int, frame: Frame, rgb8: np.ndarray | None = None, image_bytes: bytes | None = None,
               rgb8_right: np.ndarray | None = None, image_bytes_right: bytes | None = None,
@@ -171,7 +176,7 @@ class DatasetWriter:
         filesystem): an :class:`EncodedFrame` without bytes, ``placed``, which that writer's
         :meth:`write_encoded` only hands to commit. ``keep_frame`` as in :meth:`encode`."""
         written = self.write(k, frame, rgb8, image_bytes, rgb8_right, image_bytes_right)
-        return EncodedFrame(written if keep_frame else written.without_arrays(), {}, {}, placed=True)
+        return EncodedFrame(written.kept(keep_frame), {}, {}, placed=True)
 
     def write_encoded(self, encoded: EncodedFrame) -> WrittenFrame:
         """An :class:`EncodedFrame`'s files written as they are (hard links as links; nothing
