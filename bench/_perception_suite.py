@@ -8,7 +8,8 @@ job starts when what it needs exists; jobs whose output already exists (in --out
 folder) are skipped, so a table too long for one call is finished by the next call with the
 earlier outputs carried back. With --time-budget a
 job starts only if, at the pace of the jobs done so far, it ends in time, so a call ends with
-whole runs only. Each job is ``perception.py _job COMMON SPEC`` with its log in OUT/logs/; the
+whole runs only. With several GPUs (--gpus) each job starts on the card with the fewest jobs
+running (its CUDA_VISIBLE_DEVICES), so one suite fills a machine. Each job is ``perception.py _job COMMON SPEC`` with its log in OUT/logs/; the
 parent prints each one's wall time and steps/s as it ends.
 """
 from __future__ import annotations
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from _perception_arms import run_name
+from roadtwin_core.errors import RoadtwinError
 from _perception_cv import choose, cv_path, set_names, write_json
 
 HERE = Path(__file__).resolve().parent
@@ -105,6 +107,22 @@ def _prune(pending: list[Job], out: Path) -> list[Job]:
     return keep
 
 
+def gpu_ids(count: int, visible: str | None) -> list[str] | None:
+    """The cards jobs are spread over: the first ``count`` of CUDA_VISIBLE_DEVICES (or 0..count-1);
+    None for one card (jobs inherit the environment)."""
+    if count <= 1:
+        return None
+    ids = [v.strip() for v in visible.split(",") if v.strip()] if visible else [str(i) for i in range(count)]
+    if len(ids) < count:
+        raise RoadtwinError(f"--gpus {count}: CUDA_VISIBLE_DEVICES={visible} names {len(ids)} card(s)")
+    return ids[:count]
+
+
+def least_loaded(gpus: list[str], busy: list[str]) -> str:
+    """The card with the fewest running jobs (the first such, so a start is deterministic)."""
+    return min(gpus, key=lambda g: (busy.count(g), gpus.index(g)))
+
+
 def _summary_line(job: Job, wall: float) -> str:
     try:
         r = json.loads(job.output.read_text())
@@ -116,7 +134,7 @@ def _summary_line(job: Job, wall: float) -> str:
 
 
 def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel: int, budget: float | None,
-              reuse: list[Path], metric: str, log=print) -> int:
+              reuse: list[Path], metric: str, log=print, gpus: list[str] | None = None) -> int:
     """Run the jobs, at most ``parallel`` at once; returns the number that failed or never started."""
     t0 = time.perf_counter()
     for f in cv_parts:                       # a choice already made travels with --reuse
@@ -128,7 +146,7 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
                 shutil.copy2(src, target)
     pending = _prune([j for j in jobs if not _reuse(j, out, reuse)], out)
     log(f"suite: {len(jobs)} jobs, {len(jobs) - len(pending)} already done, {len(pending)} to run, "
-        f"{parallel} in parallel" + (f", every job to end within {budget:.0f} s" if budget else ""))
+        f"{parallel} in parallel" + (f" over GPUs {','.join(gpus)}" if gpus else "") + (f", every job to end within {budget:.0f} s" if budget else ""))
     running: list = []
     pace = None
     failed: list[Job] = []
@@ -136,7 +154,7 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
     (out / "logs").mkdir(parents=True, exist_ok=True)
     while pending or running:
         for entry in list(running):
-            job, proc, start, fh = entry
+            job, proc, start, fh, _ = entry
             if proc.poll() is None:
                 continue
             fh.close()
@@ -177,9 +195,13 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
                 pending.remove(job)
                 spec = {"kind": job.kind, **job.spec, "output": str(job.output)}
                 fh = open(out / "logs" / f"{job.output.stem}.log", "w")
+                env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+                gpu = least_loaded(gpus, [r[4] for r in running]) if gpus else None
+                if gpu is not None:
+                    env["CUDA_VISIBLE_DEVICES"] = gpu
                 proc = subprocess.Popen([sys.executable, str(HERE / "perception.py"), "_job", str(common), json.dumps(spec)],
-                                        stdout=fh, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-                running.append((job, proc, time.perf_counter(), fh))
+                                        stdout=fh, stderr=subprocess.STDOUT, env=env)
+                running.append((job, proc, time.perf_counter(), fh, gpu))
         if not running and pending and not any(all(Path(n).exists() for n in j.needs) for j in pending):
             log(f"suite: {len(pending)} job(s) wait for outputs no job makes (e.g. {pending[0].needs[0]})")
             break

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -59,7 +60,7 @@ from _perception_frames import cmd_frames  # noqa: E402
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
 from _perception_report import iou_table, load_runs, markdown, summarize  # noqa: E402
-from _perception_suite import plan, run_suite  # noqa: E402
+from _perception_suite import gpu_ids, plan, run_suite  # noqa: E402
 from _perception_train import parse_style  # noqa: E402
 
 
@@ -172,6 +173,7 @@ def one_run(args, ctx, arm, fraction, seed, device, log=print) -> Path:
     import torch
 
     res["device"] = torch.cuda.get_device_name() if str(device).startswith("cuda") else str(device)
+    res["cuda_visible_devices"] = os.environ.get("CUDA_VISIBLE_DEVICES")
     if arm in SYNTHETIC_ARMS and arm != "zeroshot":
         beyond = labels_beyond_fraction(ctx["real"], real_subset(ctx["real"], fraction, ctx["cfg"].subset_seed),
                                         synthetic_sources(ctx["synth"].folder))
@@ -215,8 +217,9 @@ def cmd_suite(args, log=print) -> int:
              "cv": args.cv_steps * args.cv_folds}
     for job in jobs:     # what each job trains, for the pace estimate of --time-budget
         job.steps = ctx["cfg"].steps if job.spec.get("arm") in ("pretrain", "zeroshot") else steps[job.kind]
+    gpus = gpu_ids(args.gpus, os.environ.get("CUDA_VISIBLE_DEVICES"))
     return run_suite(jobs, cv_parts, common, out, args.parallel, args.time_budget, [Path(r) for r in args.reuse],
-                     args.cv_metric, log)
+                     args.cv_metric, log, gpus)
 
 
 def cmd_choose_set(records, out: Path, metric=None, log=print) -> dict:
@@ -338,6 +341,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("suite", help="the runs as parallel processes on one GPU")
     _run_options(s)
     s.add_argument("--parallel", type=int, default=4, help="processes at once (default 4)")
+    s.add_argument("--gpus", type=int, default=1, help="spread the jobs over this many GPUs of the machine, each job "
+                   "on the card with the fewest running (default 1: jobs inherit CUDA_VISIBLE_DEVICES)")
     s.add_argument("--time-budget", type=float, default=None, help="start a job only if, at the pace of the jobs "
                    "done so far, it ends within this many seconds of the suite's start (the rest: the next call)")
     s.add_argument("--reuse", nargs="*", default=[], help="folders of earlier suite outputs: their finished jobs are kept")

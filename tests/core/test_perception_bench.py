@@ -95,16 +95,35 @@ def test_suite_runs_in_parallel_processes_and_resumes(tmp_path, capsys):
     bench = _bench()
     out = tmp_path / "out"
     args = ["suite", "--real", str(TINY), *SMALL, "--arms", "a", "d", "--seeds", "0", "--fractions", "1",
-            "--parallel", "2", "--out", str(out)]
+            "--parallel", "2", "--gpus", "2", "--out", str(out)]
     assert bench.main(args) == 0
     printed = capsys.readouterr().out
-    assert "real@100% seed 0:" in printed and "steps/s" in printed
+    assert "real@100% seed 0:" in printed and "steps/s" in printed and "over GPUs 0,1" in printed
     done = sorted(p.name for p in out.glob("run_*.json"))
     assert done == ["run_paste_100_seed0.json", "run_real_100_seed0.json"]
+    # the two jobs ran at once, one on each card
+    assert sorted(json.loads((out / d).read_text())["cuda_visible_devices"] for d in done) == ["0", "1"]
     # again into a fresh folder, reusing the first: nothing runs, the outputs are copied over
     assert bench.main(args[:-1] + [str(tmp_path / "again"), "--reuse", str(out)]) == 0
     assert "0 to run" in capsys.readouterr().out
     assert sorted(p.name for p in (tmp_path / "again").glob("run_*.json")) == done
+
+
+def test_suite_spreads_jobs_over_the_cards_it_is_given():
+    _bench()
+    from _perception_suite import gpu_ids, least_loaded
+    from roadtwin_core.errors import RoadtwinError
+
+    assert gpu_ids(1, "3") is None                       # one card: jobs inherit the environment
+    assert gpu_ids(2, None) == ["0", "1"]
+    assert gpu_ids(2, "4, 6,7") == ["4", "6"]            # the first N of what the machine was given
+    with pytest.raises(RoadtwinError, match="--gpus 3.*names 2"):
+        gpu_ids(3, "0,1")
+    busy = []
+    for _ in range(5):                                   # five starts over two cards: 3 and 2, alternating
+        busy.append(least_loaded(["0", "1"], busy))
+    assert busy == ["0", "1", "0", "1", "0"]
+    assert least_loaded(["0", "1"], ["0", "0", "1"]) == "1"
 
 
 # --------------------------------------------------------------------------------- metrics
