@@ -48,7 +48,9 @@ def measure(stage: Path, args) -> dict:
         if args.warmup:
             run_render(stage, Path(tmp) / "warmup", options(args, args.warmup, args.seed + 1))
         t0 = time.perf_counter()
+        t_start = time.time()
         summary = run_render(stage, Path(tmp) / "run", options(args, args.frames, args.seed))
+        summary["t_start"] = t_start
         summary["wall_s"] = time.perf_counter() - t0
     return summary
 
@@ -68,6 +70,11 @@ def report(summary: dict) -> None:
     print(f"{'frames (wall)':>14} {t['frames']:9.3f} {1e3 * t['frames'] / n:9.2f} {summary['frames_per_s']:10.1f}")
     wall = summary["wall_s"]
     print(f"{'end to end':>14} {wall:9.3f} {1e3 * wall / n:9.2f} {n / wall:10.1f}")
+    for shard in summary.get("shards", []):        # --executor ray on GPUs: each card's frames and when it rendered them
+        t0, t1 = shard.get("frames_from_to", (0.0, 0.0))
+        print(f"shard gpu {shard.get('gpu')} card {shard.get('card')}: frames {shard['first']}..{shard['first'] + shard['frames'] - 1}"
+              f" rendered in {t1 - t0:.2f} s ({shard['frames'] / max(t1 - t0, 1e-9):.1f} frames/s), from +{t0 - summary['t_start']:.2f} s"
+              if "t_start" in summary else f"shard {shard}")
     print("BENCH " + json.dumps({"frames": n, "device": summary["device"], "executor": summary["executor"],
                                  "phases_s": phases, "frames_wall_s": t["frames"], "setup_wall_s": t["setup"],
                                  "frames_per_s": summary["frames_per_s"], "end_to_end_s": round(summary["wall_s"], 3),

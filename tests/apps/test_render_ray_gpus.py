@@ -55,6 +55,9 @@ def test_frames_are_spread_over_the_gpus_with_the_bytes_of_one_process(road, pm,
     assert sorted(s["gpu"] for s in shards) == ["0", "1"]             # each task had its own card
     assert [s["processes"] for s in shards] == [1, 1]                # 2 CPUs over 2 GPUs, one left: at least 1
     assert [s["direct"] for s in shards] == [same_filesystem] * 2
+    for s in shards:                     # when each card rendered its frames; which card (None: no CUDA here)
+        t0, t1 = s["frames_from_to"]
+        assert 0 < t1 - t0 < 600 and s["card"] is None
     per_frame = {p.stat().st_ino: p.stat().st_size for p in outs["serial"].rglob("*")    # links once
                  if p.is_file() and p.stem.isdigit()}                                  # 000000.png ...
     streamed = [s["streamed_bytes"] for s in shards]

@@ -159,8 +159,8 @@ def _collect(ray, gens: dict, shards: list[range], sink) -> list[dict]:
                 del gens[gen]
                 continue
             value = _get(ray, ref)
-            if isinstance(value, dict):
-                info[s] = {**value, "streamed_bytes": 0}
+            if isinstance(value, dict):             # where the task runs (first), when it rendered (last)
+                info[s] = {"streamed_bytes": 0, **info[s], **value}
                 continue
             for out in value:
                 if out.encoded is not None:
@@ -202,14 +202,30 @@ def _render_shard(shared: dict, first: int, jobs: list[FrameJob]) -> Iterator[An
     yield {"gpu": os.environ.get("CUDA_VISIBLE_DEVICES"), "gpu_ids": [str(g) for g in ray.get_gpu_ids()],
            "node": node, "processes": n, "direct": direct is not None}
     batch: list[FrameOut] = []
+    started = None
     with _finishing_pool(shared, n, direct) as pool:        # forked before the scene goes to the card
         for out in _finished_frames(shared["ctx"], first, jobs, pool, n):
+            started = started or time.time()
             batch.append(out)
             if len(batch) == BATCH:
                 yield batch
                 batch = []
     if batch:
         yield batch
+    # when this card rendered (wall clock: shards of one host overlap when they ran at once) and which card it was
+    yield {"frames_from_to": [round(started or time.time(), 3), round(time.time(), 3)],
+           "card": _card(shared["ctx"])}
+
+
+def _card(ctx: RenderContext) -> str | None:
+    """The PCI bus id of the task's CUDA device (which physical card ``cuda:0`` was), or None."""
+    if not str(ctx.params.device or "").startswith("cuda"):
+        return None
+    with suppress(Exception):
+        import warp as wp
+
+        return str(getattr(wp.get_device("cuda:0"), "pci_bus_id", None))
+    return None
 
 
 def _staging_writer(spec: dict | None) -> DatasetWriter | None:
