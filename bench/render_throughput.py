@@ -19,11 +19,18 @@ records, in order). On CUDA the warp renderer finishes frames on the device
 batch's seconds shared out over its frames), sensor only the JPEG encode/decode, labels only the
 dilation. ``--formats`` (default ``mmseg``, what ``bench/perception.py`` reads).
 Without ``--stage`` it composes ``stages/town.usda`` first (not timed).
+
+``--executor ray``: a local Ray cluster is started once, before the warm-up, and both renders
+use it, as renders on a running cluster do (its start is printed, not timed; ``--ray-address``
+joins one). On CUDA each render still starts one fresh Ray worker per GPU (its own CUDA
+context, ``apps/render/gpu_shards.py``), inside the frames phase; each shard's line says when its
+card rendered, so the rate while the cards render shows beside the frames phase's.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -41,9 +48,22 @@ def options(args, frames: int, seed: int):
                          executor=args.executor, workers=args.workers)
 
 
+def running_cluster(args) -> None:
+    """Start (or join, ``--ray-address``) the Ray cluster the renders share; prints its start."""
+    import ray
+
+    t0 = time.perf_counter()
+    ray.init(address=args.ray_address, num_cpus=None if args.ray_address else os.cpu_count(), include_dashboard=False,
+             log_to_driver=False, logging_level="ERROR")
+    print(f"ray cluster {'joined' if args.ray_address else 'started'} in {time.perf_counter() - t0:.1f} s "
+          f"(not timed): {ray.cluster_resources()}")
+
+
 def measure(stage: Path, args) -> dict:
     from roadtwin_core.apps.render import run_render
 
+    if args.executor == "ray":
+        running_cluster(args)
     with tempfile.TemporaryDirectory() as tmp:
         if args.warmup:
             run_render(stage, Path(tmp) / "warmup", options(args, args.warmup, args.seed + 1))
@@ -75,7 +95,14 @@ def report(summary: dict) -> None:
         print(f"shard gpu {shard.get('gpu')} card {shard.get('card')}: frames {shard['first']}..{shard['first'] + shard['frames'] - 1}"
               f" rendered in {t1 - t0:.2f} s ({shard['frames'] / max(t1 - t0, 1e-9):.1f} frames/s), from +{t0 - summary['t_start']:.2f} s"
               if "t_start" in summary else f"shard {shard}")
+    spans = [s["frames_from_to"] for s in summary.get("shards", []) if "frames_from_to" in s]
+    together = None
+    if spans:
+        span = max(b for _, b in spans) - min(a for a, _ in spans)
+        together = round(n / max(span, 1e-9), 1)
+        print(f"{'cards together':>14} {span:9.3f} {1e3 * span / n:9.2f} {together:10.1f}   (first frame of any card to last)")
     print("BENCH " + json.dumps({"frames": n, "device": summary["device"], "executor": summary["executor"],
+                                 "cards_together_frames_per_s": together,
                                  "phases_s": phases, "frames_wall_s": t["frames"], "setup_wall_s": t["setup"],
                                  "frames_per_s": summary["frames_per_s"], "end_to_end_s": round(summary["wall_s"], 3),
                                  "end_to_end_frames_per_s": round(n / summary["wall_s"], 2)}))
@@ -91,6 +118,7 @@ def main() -> None:
     ap.add_argument("--formats", default="mmseg")
     ap.add_argument("--device", default=None, help="cpu | cuda | cuda:N (default: the renderer's)")
     ap.add_argument("--executor", default="local")
+    ap.add_argument("--ray-address", default=None, help="--executor ray: join this cluster (default: start a local one)")
     ap.add_argument("--workers", type=int, default=None, help="threads on a GPU, processes on the CPU")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
