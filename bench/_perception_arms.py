@@ -10,6 +10,8 @@ steps (each a fresh AdamW, warm-up + cosine), so all arms spend the same P + R o
   zeroshot (e) P synthetic + R synthetic: never sees a real frame (no fraction)
 
 Phase 2 of (a), (b) and a "finetune" (c) draw the same real batches (same phase seed).
+``bn_stats="real"`` (``--bn-stats real``): after phase 2 every arm's batch-norm statistics are
+recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels).
 Nothing is selected on the evaluation frames: fixed schedules, the last weights.
 """
 from __future__ import annotations
@@ -25,9 +27,10 @@ from roadtwin_core.errors import RoadtwinError
 
 import _segnet
 from _perception_data import CLASSES, Frames, real_subset
-from _perception_train import MEAN, STD, Phase, evaluate, to_device, train_phase
+from _perception_train import MEAN, STD, Phase, evaluate, recalibrate_bn, to_device, train_phase
 
 ARMS = ("real", "pretrain", "mixed", "paste", "zeroshot")
+BN_STATS = ("train", "real")
 LETTER = dict(zip(ARMS, "abcde"))
 SYNTHETIC_ARMS = ("pretrain", "mixed", "zeroshot")
 SCHEDULES = ("constant", "finetune")
@@ -46,6 +49,7 @@ class Config:
     subset_seed: int = 0
     size: tuple | None = (512, 320)
     style: str | None = None      # "fda:BETA": synthetic frames take real frames' low frequencies
+    bn_stats: str = "train"       # "real": BN statistics recomputed on the arm's real train frames after training
 
 
 def run_name(arm: str, fraction: float | None) -> str:
@@ -149,6 +153,12 @@ def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Fram
         model = fresh_model(cfg, seed, device)
         infos = [train_phase(model, data, phases[0], cfg, device, log)]
     infos.append(train_phase(model, data, phases[1], cfg, device, log))
+    if cfg.bn_stats == "real":     # every arm alike; zero-shot: the train images (``style``), never their labels
+        frames = real if real is not None else style
+        if frames is None:
+            raise RoadtwinError(f"--bn-stats real: arm {arm} has no real train frames to take the statistics from")
+        layers = recalibrate_bn(model, data["real"][0] if "real" in data else to_device(frames, device)[0], device, cfg.batch)
+        infos[-1] = {**infos[-1], "bn_stats": {"from": "real train frames", "frames": len(frames.stems), "layers": layers}}
     return model, infos
 
 

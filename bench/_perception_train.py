@@ -231,6 +231,36 @@ def train_phase(model, data: dict, phase: Phase, cfg, device, log=print) -> dict
             "counts": phase.counts, "paste": phase.paste, "loss": losses}
 
 
+def recalibrate_bn(model, images, device, batch: int = 16) -> int:
+    """AdaBN (Li et al. 2016): every batch-norm layer's running mean and variance recomputed from
+    ``images`` (uint8 (N,H,W,3) on the device, preprocessed as for evaluation), the weights kept.
+    Why: a model trained on mixed real and synthetic batches normalizes real frames with
+    statistics partly of synthetic ones. Each BN layer's statistics become the plain average over
+    the batches (momentum None); everything else runs as in evaluation (no dropout or drop-connect).
+    Returns the number of BN layers recomputed."""
+    torch = _torch()
+    norms = [m for m in model.modules() if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+    saved = [m.momentum for m in norms]
+    cuda = torch.device(device).type == "cuda"
+    model.eval()
+    for m in norms:
+        m.reset_running_stats()
+        m.momentum = None
+        m.train()
+    try:
+        with torch.no_grad(), torch.autocast(device_type="cuda", dtype=torch.bfloat16, enabled=cuda):
+            for s in range(0, images.shape[0], batch):
+                x, _ = augment(images[s:s + batch], images[s:s + batch, ..., 0], None, train=False)
+                if cuda:
+                    x = x.contiguous(memory_format=torch.channels_last)
+                model(x)
+    finally:
+        for m, momentum in zip(norms, saved):
+            m.momentum = momentum
+        model.train()
+    return len(norms)
+
+
 def evaluate(model, data, device, batch: int = 16, keep=()):
     """Per-frame intersections and unions (N, C) int64 of the argmax prediction (ignore pixels
     excluded), and the predictions of the frames in ``keep``."""

@@ -53,7 +53,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))       # the bench/_perc
 from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 import _segnet  # noqa: E402
-from _perception_arms import ARMS, LETTER, SYNTHETIC_ARMS, Config, make_model, run_arm, write_run  # noqa: E402
+from _perception_arms import ARMS, BN_STATS, LETTER, SYNTHETIC_ARMS, Config, make_model, run_arm, write_run  # noqa: E402
 from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_points,  # noqa: E402
                             labels_beyond_fraction, leak_guard, parse_mix, synthetic_sources, write_json)
 from _perception_frames import cmd_frames  # noqa: E402
@@ -87,7 +87,7 @@ def parse_arms(names) -> list[str]:
 def config_of(args) -> Config:
     return Config(steps=args.steps, pretrain_steps=args.pretrain_steps, batch=args.batch, lr=args.lr, width=args.width,
                   encoder=args.encoder, subset_seed=args.subset_seed, size=parse_size(args.size),
-                  style=getattr(args, "style", None))
+                  style=getattr(args, "style", None), bn_stats=getattr(args, "bn_stats", "train"))
 
 
 def prepare(args, log=print) -> dict:
@@ -295,6 +295,8 @@ def _run_options(t) -> None:
     t.add_argument("--encoder", choices=_segnet.ENCODERS, default=_segnet.DEFAULT_ENCODER)
     t.add_argument("--width", type=int, default=32, help="scratch: U-Net base channels; efficientnet-lite0: decoder x width/32")
     t.add_argument("--size", default="512x320", help="train/eval size WIDTHxHEIGHT (default 512x320)")
+    t.add_argument("--bn-stats", choices=BN_STATS, default="train", help="real: after training, every arm's batch-norm "
+                   "statistics recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels)")
     t.add_argument("--style", default=None, help="fda:BETA: Fourier domain adaptation of the synthetic frames to "
                    "the arm's real train images (zero-shot: all train images, never their labels); e.g. fda:0.01")
     t.add_argument("--limit-frames", type=int, default=None, help="first N frames of each folder (smoke runs)")

@@ -109,6 +109,61 @@ def test_suite_runs_in_parallel_processes_and_resumes(tmp_path, capsys):
     assert sorted(p.name for p in (tmp_path / "again").glob("run_*.json")) == done
 
 
+def test_bn_statistics_recomputed_on_given_frames_as_in_evaluation():
+    """AdaBN's closed form: with one batch of all frames, each BN layer's running mean and
+    (unbiased) variance are those of the inputs the layer sees in evaluation afterwards (layers
+    after the first to ~1e-3: training mode normalizes by the biased variance, evaluation by the
+    unbiased one, n/(n-1) = 1.0014 here; the statistics training left were 5 and 9); dropout is off meanwhile (0.9 of it would move the second layer's variance tenfold),
+    the weights and the momentum are kept."""
+    torch = pytest.importorskip("torch")
+    _bench()
+    from _perception_train import recalibrate_bn
+
+    torch.manual_seed(0)
+    nn = torch.nn
+    model = nn.Sequential(nn.Conv2d(3, 4, 1, bias=False), nn.BatchNorm2d(4), nn.ReLU(), nn.Dropout(0.9),
+                          nn.Conv2d(4, 4, 3, padding=1), nn.BatchNorm2d(4, momentum=0.3))
+    for m in model:                                     # statistics of another domain, as training leaves them
+        if isinstance(m, nn.BatchNorm2d):
+            m.running_mean.fill_(5.0)
+            m.running_var.fill_(9.0)
+            m.num_batches_tracked.fill_(4500)
+    before = {k: v.clone() for k, v in model.state_dict().items() if "running" not in k and "num_batches" not in k}
+    images = torch.from_numpy(np.random.default_rng(3).integers(0, 256, (6, 10, 12, 3), dtype=np.uint8))
+    assert recalibrate_bn(model, images, "cpu", batch=6) == 2
+    seen = []
+    hooks = [m.register_forward_hook(lambda mod, inp, out: seen.append(inp[0].detach())) for m in model
+             if isinstance(m, nn.BatchNorm2d)]
+    model.eval()
+    from _perception_train import augment
+
+    with torch.no_grad():
+        model(augment(images, images[..., 0], None, train=False)[0])
+    for h in hooks:
+        h.remove()
+    norms = [m for m in model if isinstance(m, nn.BatchNorm2d)]
+    for bn, x in zip(norms, seen):
+        flat = x.permute(1, 0, 2, 3).reshape(x.shape[1], -1)
+        assert torch.allclose(bn.running_mean, flat.mean(1), atol=1e-3)
+        assert torch.allclose(bn.running_var, flat.var(1, unbiased=True), rtol=1e-2)
+    assert [bn.momentum for bn in norms] == [0.1, 0.3]
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items() if k in before)
+
+
+def test_bn_stats_real_is_recorded_with_the_frames_it_used(tmp_path):
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    out = tmp_path / "out"
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--seeds", "0", "--fractions", "1",
+                       "--arms", "c", "e", "--mix", "0.5:constant", "--bn-stats", "real", "--out", str(out)]) == 0
+    mixed, zero = (json.loads((out / f"run_{n}_seed0.json").read_text()) for n in ("mixed_100", "zeroshot_na"))
+    n_train = len(list((TINY / "train/images").glob("*")))
+    for run in (mixed, zero):
+        assert run["config"]["bn_stats"] == "real"
+        assert run["phases"][-1]["bn_stats"]["frames"] == n_train and run["phases"][-1]["bn_stats"]["layers"] > 0
+
+
 def test_suite_spreads_jobs_over_the_cards_it_is_given():
     _bench()
     from _perception_suite import gpu_ids, least_loaded
