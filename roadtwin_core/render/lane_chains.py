@@ -14,7 +14,7 @@ import numpy as np
 
 from .cameras import Lane
 
-__all__ = ["ChainedLane", "chain_lanes", "lane_ahead", "project_to_lane"]
+__all__ = ["ChainedLane", "chain_lanes", "lane_ahead", "project_to_lane", "unit_vector"]
 
 
 @dataclass
@@ -41,8 +41,8 @@ def chain_lanes(lanes: Sequence[Lane], tol_m: float = 0.05, max_turn_deg: float 
         return []
     starts = np.array([l.points[0] for l in lanes])
     ends = np.array([l.points[-1] for l in lanes])
-    d_in = np.array([_unit(l.points[1] - l.points[0]) for l in lanes])
-    d_out = np.array([_unit(l.points[-1] - l.points[-2]) for l in lanes])
+    d_in = np.array([unit_vector(l.points[1] - l.points[0]) for l in lanes])
+    d_out = np.array([unit_vector(l.points[-1] - l.points[-2]) for l in lanes])
     gap = np.linalg.norm(ends[:, None, :] - starts[None, :, :], axis=-1)
     turn_ok = (d_out @ d_in.T) >= math.cos(math.radians(max_turn_deg))
     link = (gap <= tol_m) & turn_ok
@@ -83,7 +83,8 @@ def chain_lanes(lanes: Sequence[Lane], tol_m: float = 0.05, max_turn_deg: float 
     return out
 
 
-def _unit(v: np.ndarray) -> np.ndarray:
+def unit_vector(v: np.ndarray) -> np.ndarray:
+    """``v`` scaled to length 1 (a zero vector stays near zero instead of dividing by it)."""
     return v / max(float(np.linalg.norm(v)), 1e-12)
 
 

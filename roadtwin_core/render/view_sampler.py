@@ -34,7 +34,7 @@ import numpy as np
 
 from ..errors import RoadtwinError
 from .cameras import NO_KEEP_OUT, Camera, GroundFn, Intrinsics, KeepOut, Lane, lane_keep_out, look_from
-from .lane_chains import ChainedLane, _unit, chain_lanes, lane_ahead, project_to_lane  # noqa: F401  (re-exported)
+from .lane_chains import ChainedLane, chain_lanes, lane_ahead, project_to_lane, unit_vector  # noqa: F401  (re-exported)
 from .scene import stage_lanes
 from .view_draws import TRACK_HALF_M, WHEELBASE_HALF_M, clear_of, lane_spots, road_attitudes
 
@@ -145,7 +145,7 @@ def in_view(cam_to_world: np.ndarray, xy: np.ndarray, hfov_deg: float, near_m: f
     if not len(xy):
         return np.zeros(0, dtype=bool)
     f = cam_to_world[:3, 2]
-    h = _unit(np.array([f[0], f[1]]))
+    h = unit_vector(np.array([f[0], f[1]]))
     d = xy - cam_to_world[:2, 3]
     ahead = d @ h
     side = d @ np.array([-h[1], h[0]])
