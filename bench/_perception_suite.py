@@ -123,6 +123,26 @@ def least_loaded(gpus: list[str], busy: list[str]) -> str:
     return min(gpus, key=lambda g: (busy.count(g), gpus.index(g)))
 
 
+class Pace:
+    """Seconds an optimizer step takes, per job sharing the card: jobs on one GPU share it, so a
+    job that ran beside two others took ~3x as long a step as it would alone. Each finished job
+    gives its wall seconds per step over the mean number of jobs on its card while it ran; the
+    slowest of these (the estimate stays on the safe side) times the jobs its card will hold
+    predicts a new job's wall time."""
+
+    def __init__(self):
+        self.per_step_per_job: float | None = None
+
+    def observe(self, steps: int, wall: float, mean_sharing: float) -> None:
+        if steps > 0:
+            value = wall / steps / max(mean_sharing, 1.0)
+            self.per_step_per_job = max(self.per_step_per_job or 0.0, value)
+
+    def predict(self, steps: int, sharing: int) -> float | None:
+        """Wall seconds of a ``steps`` job on a card that ``sharing`` jobs (itself included) share; None: no pace yet."""
+        return None if self.per_step_per_job is None else steps * self.per_step_per_job * max(sharing, 1)
+
+
 def _summary_line(job: Job, wall: float) -> str:
     try:
         r = json.loads(job.output.read_text())
@@ -148,22 +168,24 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
     log(f"suite: {len(jobs)} jobs, {len(jobs) - len(pending)} already done, {len(pending)} to run, "
         f"{parallel} in parallel" + (f" over GPUs {','.join(gpus)}" if gpus else "") + (f", every job to end within {budget:.0f} s" if budget else ""))
     running: list = []
-    pace = None
+    pace = Pace()
     failed: list[Job] = []
     done_count = len(jobs) - len(pending)
     (out / "logs").mkdir(parents=True, exist_ok=True)
     while pending or running:
         for entry in list(running):
-            job, proc, start, fh, _ = entry
+            job, proc, start, fh, gpu, sharing = entry
             if proc.poll() is None:
+                sharing[0] += sum(1 for r in running if r[4] == gpu)      # jobs on its card now, itself included
+                sharing[1] += 1
                 continue
             fh.close()
             running.remove(entry)
             wall = time.perf_counter() - start
             if proc.returncode == 0 and job.output.exists():
                 done_count += 1
-                if job.steps:                    # wall seconds per step with this many processes
-                    pace = max(pace or 0.0, wall / job.steps)
+                if job.steps:                    # wall seconds per step and job sharing its card
+                    pace.observe(job.steps, wall, sharing[0] / sharing[1] if sharing[1] else 1.0)
                 log(f"[{done_count}/{len(jobs)}] {_summary_line(job, wall)}")
             else:
                 failed.append(job)
@@ -189,24 +211,25 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
                 continue
             if len(running) >= parallel or out_of_time:
                 break
-            if budget is not None and pace and elapsed + job.steps * pace + 20 > budget:
+            gpu = least_loaded(gpus, [r[4] for r in running]) if gpus else None
+            wall = pace.predict(job.steps, 1 + sum(1 for r in running if r[4] == gpu))
+            if budget is not None and wall is not None and elapsed + wall + 20 > budget:
                 continue                         # would not end in time at the pace seen so far
             if all(Path(n).exists() for n in job.needs):
                 pending.remove(job)
                 spec = {"kind": job.kind, **job.spec, "output": str(job.output)}
                 fh = open(out / "logs" / f"{job.output.stem}.log", "w")
                 env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-                gpu = least_loaded(gpus, [r[4] for r in running]) if gpus else None
                 if gpu is not None:
                     env["CUDA_VISIBLE_DEVICES"] = gpu
                 proc = subprocess.Popen([sys.executable, str(HERE / "perception.py"), "_job", str(common), json.dumps(spec)],
                                         stdout=fh, stderr=subprocess.STDOUT, env=env)
-                running.append((job, proc, time.perf_counter(), fh, gpu))
+                running.append((job, proc, time.perf_counter(), fh, gpu, [0, 0]))
         if not running and pending and not any(all(Path(n).exists() for n in j.needs) for j in pending):
             log(f"suite: {len(pending)} job(s) wait for outputs no job makes (e.g. {pending[0].needs[0]})")
             break
         if budget is not None and not running and (out_of_time or not any(
-                elapsed + j.steps * (pace or 0) + 20 <= budget for j in pending)):
+                elapsed + (pace.predict(j.steps, 1) or 0) + 20 <= budget for j in pending)):
             break
         time.sleep(0.2)
     left = len(pending)

@@ -164,6 +164,24 @@ def test_bn_stats_real_is_recorded_with_the_frames_it_used(tmp_path):
         assert run["phases"][-1]["bn_stats"]["frames"] == n_train and run["phases"][-1]["bn_stats"]["layers"] > 0
 
 
+def test_suite_pace_counts_the_jobs_that_shared_a_card():
+    """The 2 x H100 CV of 2026-11-27: 3,000-step CV jobs took 420 s with four jobs on each card; a
+    4,500-step run then shared its card with one other and took 311-314 s. The old estimate (the
+    slowest seconds a step, 0.14) said 630 s and left the runs unstarted."""
+    _bench()
+    from _perception_suite import Pace
+
+    pace = Pace()
+    assert pace.predict(4500, 2) is None                 # nothing finished yet: no estimate
+    pace.observe(3000, 420.0, mean_sharing=4.0)
+    assert pace.predict(4500, 2) == pytest.approx(315.0)
+    assert pace.predict(4500, 1) == pytest.approx(157.5)
+    pace.observe(1000, 30.0, mean_sharing=1.0)           # a faster job does not lower the safe estimate
+    assert pace.predict(4500, 2) == pytest.approx(315.0)
+    pace.observe(1000, 100.0, mean_sharing=2.0)          # a slower one raises it: 0.05 s a step and job
+    assert pace.predict(1000, 3) == pytest.approx(150.0)
+
+
 def test_suite_spreads_jobs_over_the_cards_it_is_given():
     _bench()
     from _perception_suite import gpu_ids, least_loaded
