@@ -9,8 +9,9 @@ folder) are skipped, so a table too long for one call is finished by the next ca
 earlier outputs carried back. With --time-budget a
 job starts only if, at the pace of the jobs done so far, it ends in time, so a call ends with
 whole runs only. With several GPUs (--gpus) each job starts on the card with the fewest jobs
-running (its CUDA_VISIBLE_DEVICES), so one suite fills a machine. Each job is ``perception.py _job COMMON SPEC`` with its log in OUT/logs/; the
-parent prints each one's wall time and steps/s as it ends.
+running (its CUDA_VISIBLE_DEVICES), so one suite fills a machine. Each job is
+``perception.py _job COMMON SPEC`` with its log in OUT/logs/; the parent prints each one's wall
+time and steps/s as it ends.
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from _perception_arms import run_name
 from roadtwin_core.errors import RoadtwinError
@@ -123,6 +125,21 @@ def least_loaded(gpus: list[str], busy: list[str]) -> str:
     return min(gpus, key=lambda g: (busy.count(g), gpus.index(g)))
 
 
+@dataclass
+class Running:
+    """A job's process, and how many jobs shared its card while it ran (summed over the checks)."""
+    job: Job
+    proc: subprocess.Popen
+    start: float
+    log: Any
+    gpu: str | None
+    shared_sum: int = 0
+    checks: int = 0
+
+    def mean_sharing(self) -> float:
+        return self.shared_sum / self.checks if self.checks else 1.0
+
+
 class Pace:
     """Seconds an optimizer step takes, per job sharing the card: jobs on one GPU share it, so a
     job that ran beside two others took ~3x as long a step as it would alone. Each finished job
@@ -166,7 +183,8 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
                 shutil.copy2(src, target)
     pending = _prune([j for j in jobs if not _reuse(j, out, reuse)], out)
     log(f"suite: {len(jobs)} jobs, {len(jobs) - len(pending)} already done, {len(pending)} to run, "
-        f"{parallel} in parallel" + (f" over GPUs {','.join(gpus)}" if gpus else "") + (f", every job to end within {budget:.0f} s" if budget else ""))
+        f"{parallel} in parallel" + (f" over GPUs {','.join(gpus)}" if gpus else "")
+        + (f", every job to end within {budget:.0f} s" if budget else ""))
     running: list = []
     pace = Pace()
     failed: list[Job] = []
@@ -174,18 +192,18 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
     (out / "logs").mkdir(parents=True, exist_ok=True)
     while pending or running:
         for entry in list(running):
-            job, proc, start, fh, gpu, sharing = entry
+            job, proc = entry.job, entry.proc
             if proc.poll() is None:
-                sharing[0] += sum(1 for r in running if r[4] == gpu)      # jobs on its card now, itself included
-                sharing[1] += 1
+                entry.shared_sum += sum(1 for r in running if r.gpu == entry.gpu)   # jobs on its card, itself included
+                entry.checks += 1
                 continue
-            fh.close()
+            entry.log.close()
             running.remove(entry)
-            wall = time.perf_counter() - start
+            wall = time.perf_counter() - entry.start
             if proc.returncode == 0 and job.output.exists():
                 done_count += 1
                 if job.steps:                    # wall seconds per step and job sharing its card
-                    pace.observe(job.steps, wall, sharing[0] / sharing[1] if sharing[1] else 1.0)
+                    pace.observe(job.steps, wall, entry.mean_sharing())
                 log(f"[{done_count}/{len(jobs)}] {_summary_line(job, wall)}")
             else:
                 failed.append(job)
@@ -211,8 +229,8 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
                 continue
             if len(running) >= parallel or out_of_time:
                 break
-            gpu = least_loaded(gpus, [r[4] for r in running]) if gpus else None
-            wall = pace.predict(job.steps, 1 + sum(1 for r in running if r[4] == gpu))
+            gpu = least_loaded(gpus, [r.gpu for r in running]) if gpus else None
+            wall = pace.predict(job.steps, 1 + sum(1 for r in running if r.gpu == gpu))
             if budget is not None and wall is not None and elapsed + wall + 20 > budget:
                 continue                         # would not end in time at the pace seen so far
             if all(Path(n).exists() for n in job.needs):
@@ -224,7 +242,7 @@ def run_suite(jobs: list[Job], cv_parts: dict, common: Path, out: Path, parallel
                     env["CUDA_VISIBLE_DEVICES"] = gpu
                 proc = subprocess.Popen([sys.executable, str(HERE / "perception.py"), "_job", str(common), json.dumps(spec)],
                                         stdout=fh, stderr=subprocess.STDOUT, env=env)
-                running.append((job, proc, time.perf_counter(), fh, gpu, [0, 0]))
+                running.append(Running(job, proc, time.perf_counter(), fh, gpu))
         if not running and pending and not any(all(Path(n).exists() for n in j.needs) for j in pending):
             log(f"suite: {len(pending)} job(s) wait for outputs no job makes (e.g. {pending[0].needs[0]})")
             break
