@@ -4,7 +4,7 @@ reconstructor on it, and the scores against the twin's truth.
 
 The disparity of a frame is computed once (and kept in ``OUT/CASE/disparity_*.npz`` with
 ``--reuse``; float32 holds SGBM's 1/16 px steps and the refinement's float32 result exactly), so
-several detector settings (``--floor``) are scored on the same maps. Footprints are scored two
+several detector settings (``--floor``, ``--fuse``) are scored on the same maps. Footprints are scored two
 ways: the *detected* footprint (the instance's mask outline on its road plane: what the detector
 says is damaged road) and the *model* outline (the mesh's boundary, which mesh.py pads by 30 % of
 the mask's radius so that the mesh reaches the road at height 0).
@@ -151,36 +151,44 @@ def _summary(rows: list[dict], det: int, false: int, frames: int, per_frame: lis
 def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tuple[float, float],
                    floors: list[tuple[float, float]], cache: Path | None = None,
                    reject: tuple[float, float] | None = None, border_px: int = 0,
-                   k_region: float | None = None, refit_k: float | None = None) -> list[dict]:
-    """One summary per (floor_depth_m, floor_area_m2) in ``floors``, all on the same disparity maps."""
+                   k_region: float | None = None, refit_k: float | None = None,
+                   fuse: tuple[tuple[int, int], ...] = ((1, 0),)) -> list[dict]:
+    """One summary per (floor_depth_m, floor_area_m2) in ``floors`` x (K, L) in ``fuse`` (K pairs
+    fused on each, L of them after it: StereoDefects.run_sequence; (1, 0) = each pair alone), all
+    on the same disparity maps."""
     from roadtwin_stereo import StereoDefects
 
     rec = StereoDefects()
-    acc = [{"rows": [], "det": 0, "false": 0, "per_frame": []} for _ in floors]
     stored = dict(np.load(cache)) if cache is not None and cache.exists() else {}
-    fresh, frames = {}, 0
+    fresh, frames, inputs = {}, [], []
     for k, fr in enumerate(bag.stereo_frames()):
         fr = _crop(fr, road_rows(fr, truth, ROI_M))
         key = f"f{k:03d}"
         disp = stored[key] if key in stored else frame_disparity(fr, subpixel, reject)
         fresh[key] = disp
-        inputs = {"disparity": disp.astype(np.float64), "K": fr["K"], "baseline": fr["baseline"],
-                  "road_mask": road_mask(fr["semantic"], classes), "source": f"frame_{k:03d}"}
-        for a, (depth_m, area_m2) in zip(acc, floors):
-            extra = {} if k_region is None else {"k_region": k_region}
-            extra.update({} if refit_k is None else {"road_refit_k": refit_k})
-            res = rec.run(inputs, rec.Params(floor_depth_m=depth_m, floor_area_m2=area_m2, border_px=border_px,
-                                             **extra))
-            f = frame_figures(fr, res, instances, truth)
-            a["rows"] += f["rows"]
-            a["det"] += f["detections"]
-            a["false"] += f["false"]
-            a["per_frame"].append(sum(1 for r in f["rows"] if r["dist_m"] <= NEAR_M))
-        frames += 1
-        print(f"  frame {k:03d} scored", file=sys.stderr, flush=True)
+        inputs.append({"disparity": disp.astype(np.float64), "K": fr["K"], "baseline": fr["baseline"],
+                       "road_mask": road_mask(fr["semantic"], classes), "source": f"frame_{k:03d}",
+                       "cam_to_world": fr["cam_to_world"]})
+        frames.append({n: fr[n] for n in ("instance", "K", "cam_to_world")})   # what scoring needs, not the images
+        print(f"  frame {k:03d} read", file=sys.stderr, flush=True)
     if cache is not None and fresh.keys() != stored.keys():
         np.savez(cache, **fresh)
-    return [_summary(a["rows"], a["det"], a["false"], frames, a["per_frame"]) for a in acc]
+    extra = {} if k_region is None else {"k_region": k_region}
+    extra.update({} if refit_k is None else {"road_refit_k": refit_k})
+    out = []
+    for (depth_m, area_m2), (k_pairs, lookahead) in [(fl, fu) for fl in floors for fu in fuse]:
+        params = rec.Params(floor_depth_m=depth_m, floor_area_m2=area_m2, border_px=border_px, **extra)
+        acc = {"rows": [], "det": 0, "false": 0, "per_frame": []}
+        for fr, res in zip(frames, rec.run_sequence(inputs, params, fuse_frames=k_pairs, lookahead=lookahead)):
+            f = frame_figures(fr, res, instances, truth)
+            acc["rows"] += f["rows"]
+            acc["det"] += f["detections"]
+            acc["false"] += f["false"]
+            acc["per_frame"].append(sum(1 for r in f["rows"] if r["dist_m"] <= NEAR_M))
+        out.append(_summary(acc["rows"], acc["det"], acc["false"], len(frames), acc["per_frame"]))
+        print(f"  floor {depth_m:g} m, {area_m2:g} m2, fuse {k_pairs}:{lookahead} scored", file=sys.stderr,
+              flush=True)
+    return out
 
 
 def add_kept_map_args(ap, root: Path, cases: str, border_px: int) -> None:

@@ -30,7 +30,7 @@ reported cases stay unseen: ``tune_highway_D_seed23``, ``tune_town_seed3``.
     PYTHONPATH=.:plugins .venv/bin/python bench/loop.py [--cases town,highway_D] [--duration 3]
         [--size 1280x720] [--out out/loop] [--reuse] [--subpixel 6,2 | 0]
         [--floor DEPTH_M,AREA_M2 ...] [--reject E,R | 0] [--border-px N] [--k-region K | 0] [--refit-k K | 0]
-        [--no-surface]
+        [--fuse K[:L][,K[:L]...]] [--no-surface]
 
 ``--floor``: the detector's physical floor (StereoDefectsParams floor_depth_m, floor_area_m2);
 repeated, every value is scored on the same disparity maps (a sweep). ``--reject E,R``: sub-pixel
@@ -41,7 +41,10 @@ detections are: bench/loop_false_detections.py). ``--k-region K``: a region is a
 its mean depth exceeds K x the noise of such a mean (StereoDefectsParams k_region; 0 = off; why
 potholes are missed: bench/loop_missed.py). ``--refit-k K``: the local road model is refitted without
 the regions reaching K noise units below and above the road (StereoDefectsParams road_refit_k; 0 =
-off; road_model.py step 5).
+off; road_model.py step 5). ``--fuse K[:L]``: each pair is detected on the evidence of K pairs fused
+on it through the drive's poses, L of them after it and the rest before (StereoDefects.run_sequence,
+roadtwin_stereo/fusion.py; 1 = each pair alone, the default); a comma list is a sweep on the same
+maps; "found" is still scored per view, on that view's own detections.
 
 Targets (issue 20): surface RMSE <= 5 mm; footprint IoU >= 0.8 and depth error <= 1 cm within
 10 m; >= 95 % of potholes in view found on undulating roads.
@@ -166,11 +169,11 @@ def _print_stereo(st: dict, how: str) -> None:
           f"of which off every true defect {st['false_detections']}")
 
 
-def _print_sweep(case: str, floors: list, sts: list[dict]) -> None:
-    print(f"  {case}: floor_depth_m floor_area_m2 | found <=10 m | any dist | IoU det (model) | |depth err| mm "
-          f"| <=1 cm | detections | false")
-    for (dm, am), st in zip(floors, sts):
-        print(f"  {dm:13.4f} {am:13.4f} | {100 * st['found_share']:10.1f} % | "
+def _print_sweep(case: str, configs: list, sts: list[dict]) -> None:
+    print(f"  {case}: floor_depth_m floor_area_m2 fuse K:L | found <=10 m | any dist | IoU det (model) "
+          f"| |depth err| mm | <=1 cm | detections | false")
+    for ((dm, am), (k, la)), st in zip(configs, sts):
+        print(f"  {dm:13.4f} {am:13.4f} {f'{k}:{la}':>8s} | {100 * st['found_share']:10.1f} % | "
               f"{100 * st['found_share_all_dist']:6.1f} % "
               f"| {st['iou_median_matched']:.2f} ({st['iou_model_median_matched']:.2f}) | "
               f"{st['depth_err_median_mm']:13.1f} | {100 * st['depth_err_le_1cm_share']:4.0f} % | "
@@ -210,6 +213,9 @@ def main() -> None:
                     help="the local road model is refitted without the regions reaching this many noise units "
                     "below and above the road (StereoDefectsParams road_refit_k; 0 = off, the detector before the "
                     "refit, bench/loop_missed.py)")
+    ap.add_argument("--fuse", default="1", help="K[:L]: detect each pair on the evidence of K pairs fused through the "
+                    "drive's poses, L of them after it (StereoDefects.run_sequence; 1 = each pair alone); comma list = "
+                    "a sweep")
     ap.add_argument("--no-surface", action="store_true", help="skip the LiDAR surface (stereo sweeps)")
     args = ap.parse_args()
     subpixel = tuple(float(x) for x in (args.subpixel + ",2").split(",")[:2])
@@ -217,6 +223,13 @@ def main() -> None:
     reject = None if np.isinf(reject).all() else reject
     floors = [tuple(float(x) for x in (f + ",0").split(",")[:2]) for f in args.floor] if args.floor else \
         [(default.floor_depth_m, default.floor_area_m2)]
+    try:
+        fuse = tuple(tuple(int(x) for x in (f + ":0").split(":")[:2]) for f in args.fuse.split(","))
+    except ValueError:
+        fuse = ((0, 0),)
+    if any(k < 1 or not 0 <= la < k for k, la in fuse):
+        ap.error(f"--fuse: K[:L] with K >= 1 and 0 <= L < K expected, got {args.fuse!r}")
+    configs = [(fl, k) for fl in floors for k in fuse]
     args.out.mkdir(parents=True, exist_ok=True)
     report = {}
     for case in args.cases.split(","):
@@ -240,19 +253,20 @@ def main() -> None:
                                                        f"_reject{reject[0]:g}x{reject[1]:g}")
         cache = args.out / case / f"disparity_{args.size}_{tag}.npz" if args.reuse else None
         sts = stereo_figures(bag, summary["instances"], truth, summary["classes"], subpixel, floors, cache, reject,
-                             args.border_px, args.k_region, args.refit_k)
+                             args.border_px, args.k_region, args.refit_k, fuse)
         _log(f"{case}: stereo frames reconstructed and scored", t0)
         how = "SGBM" if subpixel[0] == 0 else f"SGBM + sub-pixel LK {subpixel[0]:g}x{subpixel[1]:g} px" + (
             "" if reject is None else f", reject {reject[0]:g}x err / {reject[1]:g}x residual")
         how += f", border {args.border_px} px" if args.border_px else ""
         how += f", k_region {args.k_region:g}, refit {args.refit_k:g}"
-        for (dm, am), st in zip(floors, sts):
-            _print_stereo(st, f"{how}, floor {1000 * dm:g} mm, {am:g} m2")
-        if len(floors) > 1:
-            _print_sweep(case, floors, sts)
-        report[case] = {"surface": s, "stereo": [{"floor_depth_m": dm, "floor_area_m2": am,
-                                                   **{k: v for k, v in st.items() if k != "rows"}}
-                                                  for (dm, am), st in zip(floors, sts)],
+        for ((dm, am), (k, la)), st in zip(configs, sts):
+            fused = f", {k} pairs fused ({la} after)" if k > 1 else ""
+            _print_stereo(st, f"{how}, floor {1000 * dm:g} mm, {am:g} m2{fused}")
+        if len(configs) > 1:
+            _print_sweep(case, configs, sts)
+        report[case] = {"surface": s, "stereo": [{"floor_depth_m": dm, "floor_area_m2": am, "fuse": list(fu),
+                                                   **{n: v for n, v in st.items() if n != "rows"}}
+                                                  for ((dm, am), fu), st in zip(configs, sts)],
                         "observations": sts[0]["rows"]}
     (args.out / "loop.json").write_text(json.dumps(report, indent=1, default=float))
 

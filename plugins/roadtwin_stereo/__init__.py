@@ -10,6 +10,8 @@ core-free (numpy / OpenCV / scipy / triangle / shapely) and can be used on their
 - :mod:`.mesh` -- one instance -> 2.5D mesh in a local road frame (z = 0 on the road);
 - :mod:`.texture` -- each defect's footprint pixels from the left image, an orthographic patch in
   its local XY (texture of a textured asset), and raw disparity back from a normalised transformed map;
+- :mod:`.fusion` -- several pairs' depth-below-the-road evidence of a drive fused on one pair
+  through their poses (:meth:`StereoDefects.run_sequence`);
 - :mod:`.synthetic` -- exact disparity of a known bowl pothole, for tests and benchmarks.
 
 Only this module touches roadtwin_core (:class:`StereoDefects` and its writer: DefectModel, DefectLook,
@@ -35,6 +37,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -43,6 +46,7 @@ from roadtwin_core import DefectLook, DefectModel, RoadtwinError, check_params, 
 from roadtwin_core.atomic import atomic_output_dir
 from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
+from .fusion import FrameFusion, PairEvidence, fused_sequence, noise_units, pair_evidence
 from .mesh import DefectInstance, reconstruct_instance
 from .road_model import metric_road_depth
 from .segment import (SegmentParams, f1_score, load_disparity, load_label, road_residual, segment_defects,
@@ -51,7 +55,8 @@ from .subpixel import refine_disparity
 from .texture import TextureSource, check_depth_scale, make_patch, source_text, texture_source
 from .transform import RoadDisparityModel, fit_road_disparity, sgbm_disparity, transform_disparity
 
-__all__ = ["StereoDefects", "StereoResult", "DefectInstance", "SegmentParams", "RoadDisparityModel",
+__all__ = ["StereoDefects", "StereoResult", "DefectInstance", "FrameFusion", "PairEvidence", "SegmentParams",
+           "RoadDisparityModel",
            "f1_score", "fit_road_disparity", "load_disparity", "load_label", "reconstruct_instance",
            "refine_disparity", "segment_defects", "sgbm_disparity", "transform_disparity"]
 
@@ -185,6 +190,16 @@ def _apply_road_mask(disp: np.ndarray, mask_in: Any, source: str) -> np.ndarray:
     return out
 
 
+def _pose(inputs: dict[str, Any], who: str) -> np.ndarray:
+    pose = inputs.get("cam_to_world")
+    if pose is None:
+        raise RoadtwinError(f"{who}: fusing pairs needs each pair's pose (inputs 'cam_to_world')")
+    pose = np.asarray(pose, np.float64)
+    if pose.shape != (4, 4) or not np.isfinite(pose).all():
+        raise RoadtwinError(f"{who}: cam_to_world must be a finite 4x4 matrix, got shape {pose.shape}")
+    return pose
+
+
 def _K(k: Any) -> np.ndarray:
     a = np.asarray(k, dtype=np.float64).ravel()
     if a.size == 4:
@@ -201,8 +216,9 @@ class StereoDefects:
     produces = "defects"
     Params = StereoDefectsParams
 
-    def run(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> StereoResult:
-        p = check_params(params or StereoDefectsParams(), self.name)
+    def _residual(self, inputs: dict[str, Any], p: StereoDefectsParams) -> SimpleNamespace:
+        """The inputs checked, the disparity (matched from a pair when given one), the road model
+        and the residual to it in noise units (segment.road_residual): what detection and fusion start from."""
         transformed_in = bool(inputs.get("transformed", False))
         K = _K(inputs["K"]) if inputs.get("K") is not None else None
         baseline = inputs.get("baseline")
@@ -261,6 +277,20 @@ class StereoDefects:
             except ValueError as exc:
                 raise RoadtwinError(f"{source}: {exc}") from None
         z, valid_z, sigma = road_residual(dt, seg, with_sigma=True)
+        return SimpleNamespace(transformed=transformed_in, disp=disp, K=K, baseline=baseline, source=source, seg=seg,
+                               dt=dt, road=road, depth_scale=depth_scale, z=z, valid=valid_z, sigma=sigma)
+
+    def run(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None,
+            fusion: FrameFusion | None = None) -> StereoResult:
+        """One frame's defects. ``fusion`` (metric inputs with ``inputs["cam_to_world"]``): other
+        pairs' evidence of the drive is fused with this one's before detecting (fusion.py);
+        :meth:`run_sequence` gathers it for a whole drive."""
+        p = check_params(params or StereoDefectsParams(), self.name)
+        r = self._residual(inputs, p)
+        transformed_in, disp, K, baseline, source, seg = r.transformed, r.disp, r.K, r.baseline, r.source, r.seg
+        dt, road, depth_scale, z, valid_z, sigma = r.dt, r.road, r.depth_scale, r.z, r.valid, r.sigma
+        if fusion is not None and not transformed_in:
+            z, valid_z, sigma = self._fused(inputs, fusion, r, p)
         metric = None
         if not transformed_in and (p.floor_depth_m > 0 or p.floor_area_m2 > 0):  # units: px of a raw disparity
             metric = metric_road_depth(z * sigma, disp, valid_z & (z > -p.k_grow), K, float(baseline))
@@ -284,6 +314,45 @@ class StereoDefects:
                 models.append(m)
                 instances.append(inst)
         return StereoResult(models, labels, dt, road, instances, self._texture(inputs, K, disp.shape, p, models))
+
+    def run_sequence(self, frames, params: StereoDefectsParams | None = None, fuse_frames: int = 1,
+                     lookahead: int = 0):
+        """Per pair of a drive, in order (each as :meth:`run`'s inputs plus ``cam_to_world``, the
+        left camera's 4 x 4 pose, OpenCV axes), its result, detected on the evidence of
+        ``fuse_frames`` pairs fused on it: the pair, the ``lookahead`` pairs after it and the rest
+        before it (fusion.py). 1 (default) = each pair alone, as :meth:`run`. Why: one pair's
+        matcher noise hides shallow far potholes that several pairs see; the later pairs see
+        them nearer (a pair's result then comes ``lookahead`` pairs late)."""
+        if not (isinstance(fuse_frames, (int, np.integer)) and fuse_frames >= 1):
+            raise RoadtwinError(f"{self.name}: fuse_frames must be an integer >= 1, got {fuse_frames!r}")
+        if not (isinstance(lookahead, (int, np.integer)) and 0 <= lookahead < fuse_frames):
+            raise RoadtwinError(f"{self.name}: lookahead must be an integer in [0, fuse_frames), got {lookahead!r}")
+        if fuse_frames == 1:
+            yield from (self.run(inputs, params) for inputs in frames)
+            return
+        yield from fused_sequence(self, frames, params, int(fuse_frames), int(lookahead))
+
+    def evidence(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> PairEvidence | None:
+        """One pair's evidence for fusion (fusion.py step 1; None without road): its depth below
+        the local road model, with ``inputs["cam_to_world"]``."""
+        p = check_params(params or StereoDefectsParams(), self.name)
+        r = self._residual(inputs, p)
+        if r.transformed:
+            raise RoadtwinError(f"{r.source}: fusing pairs needs metric disparity (K, baseline), not a transformed map")
+        return pair_evidence(r.z, r.valid, r.sigma, r.disp, r.K, float(r.baseline), _pose(inputs, self.name), p.k_grow)
+
+    def _fused(self, inputs: dict[str, Any], fusion: FrameFusion, r: SimpleNamespace, p: StereoDefectsParams):
+        """(z, valid, sigma per pixel: ``z * sigma`` in px of this pair) of the pair fused with
+        ``fusion``'s other pairs (fusion.py), in the fused map's own measured noise units."""
+        ev = pair_evidence(r.z, r.valid, r.sigma, r.disp, r.K, float(r.baseline), _pose(inputs, self.name), p.k_grow)
+        residual, gain, _ = fusion.fuse(ev, r.valid)
+        if residual is None:
+            return r.z, r.valid, r.sigma
+        valid = np.isfinite(residual)
+        z = noise_units(residual, gain)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            scale = np.where(valid & (np.abs(z) > 1e-9), residual / z, r.sigma)
+        return z, valid, scale
 
     def reconstruct(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> list[DefectModel]:
         """The models, untextured: a look needs texture files, which :meth:`write` makes."""

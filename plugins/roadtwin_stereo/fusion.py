@@ -1,0 +1,182 @@
+"""Multi-pair fusion of the detector's depth-below-the-road evidence (issue 20, item 5; core-free).
+
+Why: on bench/loop.py's undulating highway most missed pothole views peak at only ~3.5 noise
+units below the road in one pair (bench/loop_missed.py): the matcher's noise. A drive sees each
+pothole in many consecutive pairs (10 Hz), and the matcher's errors of different pairs are
+nearly independent (correlation 0.0-0.17 at the same road point on the tuning highway), so
+averaging the depth below the road at one road point over several pairs lowers that noise.
+
+How (docs/stereo_detector.md, "Multi-pair fusion"):
+
+1. per pair, the detector's residual ``z`` under its local road model (noise units,
+   road_model.py) and its scale ``s = sigma H / d_road`` (metres per noise unit: the closed form
+   of road_model.metric_road_depth), so ``D = -z s`` is the depth below the local road (m);
+2. each pixel of the current pair is placed on its road (its ray met at the local model's road
+   disparity, smoothed), moved to the world with the pair's pose and projected into each other
+   pair (its pose, pinhole K), where ``D`` and ``s`` are read (bilinear over valid pixels only);
+3. inverse-variance mean of ``D``, back in the current pair's disparity px;
+4. in units of its own noise, *measured* per pixel class (:func:`noise_units`): the road's own
+   roughness is the same in every pair and does not average out, and pixels far ahead are seen
+   by fewer pairs (the others' crop ends), so a predicted sqrt(K) would overstate the gain.
+
+The detector's steps 4-8 (segment.py) then run on the fused map, so the pair gets the
+detections. Poses are camera-to-world 4 x 4 (OpenCV axes: X right, Y down, Z forward).
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from .road_model import _smooth, robust_sigma
+
+ROAD_BLUR_PX = 4.0  # smoothing of the road disparity that places a pixel on the road (its noise, not its shape)
+
+
+@dataclass
+class PairEvidence:
+    """One pair's evidence: ``depth_m`` below its local road (NaN = invalid), ``noise_m`` (its
+    standard deviation), ``m_per_px`` (metres below the road per px of disparity residual),
+    ``road_disp`` (road disparity, px, every pixel), calibration and pose."""
+
+    depth_m: np.ndarray
+    noise_m: np.ndarray
+    m_per_px: np.ndarray
+    road_disp: np.ndarray
+    K: np.ndarray
+    baseline: float
+    cam_to_world: np.ndarray
+
+
+def _road_plane(road_disp: np.ndarray, ok: np.ndarray, K: np.ndarray, baseline: float) -> tuple[np.ndarray, float]:
+    """(affine road disparity a u + b v + c over the frame, camera height H): a plane's
+    disparity is affine in (u, v) (road_model.metric_road_depth gives the closed form)."""
+    v, u = np.nonzero(ok)
+    pick = slice(None, None, max(1, len(v) // 50000))
+    a = np.column_stack([u[pick], v[pick], np.ones(len(u[pick]))]).astype(np.float64)
+    coef, *_ = np.linalg.lstsq(a, road_disp[v[pick], u[pick]], rcond=None)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    g = np.array([coef[0], coef[1] * fy / fx, (coef @ [cx, cy, 1.0]) / fx])
+    vv, uu = np.mgrid[0:road_disp.shape[0], 0:road_disp.shape[1]]
+    return coef[0] * uu + coef[1] * vv + coef[2], baseline / max(float(np.linalg.norm(g)), 1e-12)
+
+
+def pair_evidence(z: np.ndarray, valid: np.ndarray, sigma: float, disp: np.ndarray, K: np.ndarray,
+                  baseline: float, cam_to_world: np.ndarray, k_grow: float = 3.0) -> PairEvidence | None:
+    """Step 1 for one pair from segment.road_residual's ``z``, ``valid``, ``sigma`` (px of
+    ``disp``, the raw disparity). None when too little road."""
+    d = np.asarray(disp, np.float64)
+    road_px = np.where(valid & np.isfinite(d), d - z * sigma, np.nan)
+    ok = np.isfinite(road_px) & (z > -k_grow)
+    if ok.sum() < 100:
+        return None
+    plane, height = _road_plane(road_px, ok, K, baseline)
+    road_disp = plane + _smooth(np.where(ok, road_px - plane, 0.0), ok, ROAD_BLUR_PX)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m_per_px = np.where(road_disp > 0, height / road_disp, np.nan)
+    depth = np.where(valid, -z * sigma * m_per_px, np.nan)
+    return PairEvidence(depth.astype(np.float32), (sigma * m_per_px).astype(np.float32), m_per_px, road_disp,
+                        np.asarray(K, np.float64), float(baseline), np.asarray(cam_to_world, np.float64))
+
+
+def _lookup(cur: PairEvidence, other: PairEvidence) -> tuple[np.ndarray, np.ndarray]:
+    """Step 2: ``other``'s depth and noise at the road point of every pixel of ``cur``."""
+    import cv2
+
+    h, w = cur.road_disp.shape
+    K = cur.K
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Z = np.where(cur.road_disp > 0, K[0, 0] * cur.baseline / cur.road_disp, np.nan)
+    p = np.stack([(uu - K[0, 2]) / K[0, 0] * Z, (vv - K[1, 2]) / K[1, 1] * Z, Z], -1)
+    T = np.linalg.inv(other.cam_to_world) @ cur.cam_to_world
+    q = p @ T[:3, :3].T + T[:3, 3]
+    Ko = other.K
+    with np.errstate(divide="ignore", invalid="ignore"):
+        front = q[..., 2] > 0.1
+        mu = np.where(front, Ko[0, 0] * q[..., 0] / q[..., 2] + Ko[0, 2], -1e6).astype(np.float32)
+        mv = np.where(front, Ko[1, 1] * q[..., 1] / q[..., 2] + Ko[1, 2], -1e6).astype(np.float32)
+    mu[~np.isfinite(mu)] = -1e6
+    mv[~np.isfinite(mv)] = -1e6
+    warp = lambda a: cv2.remap(a, mu, mv, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,  # noqa: E731
+                               borderValue=0.0)
+    ok = np.isfinite(other.depth_m)
+    weight = warp(ok.astype(np.float32))   # over the valid neighbours only: no hole around each invalid one
+    seen = weight > 0.5
+
+    def get(a: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(seen, warp(np.where(ok, a, 0.0).astype(np.float32)) / weight, np.nan)
+    return get(other.depth_m), get(other.noise_m)
+
+
+class FrameFusion:
+    """The ``others`` pairs' evidence (:class:`PairEvidence`, any order), to be fused onto one pair."""
+
+    def __init__(self, others=()) -> None:
+        self.others = [e for e in others if e is not None]
+
+    def fuse(self, ev: PairEvidence | None, valid: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+        """Steps 2-3: (the fused depth below the road as a residual in ``ev``'s disparity px, NaN
+        off ``valid``, None without evidence; its predicted noise over ``ev``'s alone, <= 1;
+        pairs per pixel)."""
+        if ev is None:
+            return None, np.ones(valid.shape), valid.astype(np.int32)
+        num, den = np.zeros(valid.shape), np.zeros(valid.shape)
+        count = np.zeros(valid.shape, np.int32)
+        for dj, nj in [(ev.depth_m, ev.noise_m)] + [_lookup(ev, o) for o in self.others]:
+            ok = np.isfinite(dj) & np.isfinite(nj) & (nj > 0)
+            num[ok] += dj[ok] / nj[ok] ** 2
+            den[ok] += 1.0 / nj[ok] ** 2
+            count += ok
+        ok = valid & (den > 0) & (ev.m_per_px > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            gain = np.where(ok, 1.0 / (np.sqrt(den) * ev.noise_m), 1.0)
+            residual = np.where(ok, -(num / den) / ev.m_per_px, np.nan)
+        return residual, np.clip(gain, 1e-3, 1.0), count
+
+
+def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8) -> np.ndarray:
+    """Step 4: ``residual`` (NaN = invalid) in units of its own noise, measured per class of
+    pixels: 1.4826 MAD over each ``gain`` quantile, interpolated in ``gain`` (median = road level)."""
+    ok = np.isfinite(residual)
+    out = np.zeros(residual.shape)
+    if ok.sum() < 100:
+        return out
+    r, g = residual[ok], gain[ok]
+    edges = np.unique(np.quantile(g, np.linspace(0, 1, bins + 1)))
+    idx = np.clip(np.searchsorted(edges, g, side="right") - 1, 0, max(0, len(edges) - 2))
+    centre, spread = [], []
+    for b in range(max(1, len(edges) - 1)):
+        if (idx == b).sum() >= 50:
+            centre.append(float(np.median(g[idx == b])))
+            spread.append(robust_sigma(r[idx == b]))
+    level = float(np.median(r))
+    out[ok] = (r - level) / (np.interp(g, centre, spread) if centre else robust_sigma(r))
+    return out
+
+
+def fused_sequence(detector, frames, params, fuse_frames: int, lookahead: int):
+    """Per pair of ``frames`` (inputs with ``cam_to_world``), ``detector.run`` with the evidence
+    of the ``lookahead`` pairs after it and ``fuse_frames - 1 - lookahead`` before it; a pair's
+    result comes once its later pairs have arrived (StereoDefects.run_sequence)."""
+    before = fuse_frames - 1 - lookahead
+    window: deque = deque()   # (index, inputs, evidence) of the pairs still needed
+    done = 0
+
+    def emit(k: int):
+        inputs = next(i for j, i, _ in window if j == k)
+        others = [e for j, _, e in window if j != k and k - before <= j <= k + lookahead]
+        return detector.run(inputs, params, fusion=FrameFusion(others))
+
+    for n, inputs in enumerate(frames):
+        window.append((n, inputs, detector.evidence(inputs, params)))
+        while done <= n - lookahead:
+            yield emit(done)
+            done += 1
+            while window and window[0][0] < done - before:
+                window.popleft()
+    while window and done <= window[-1][0]:
+        yield emit(done)
+        done += 1
