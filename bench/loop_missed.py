@@ -90,7 +90,7 @@ def ring_plane(d_true: np.ndarray, px: np.ndarray, others: np.ndarray) -> np.nda
 
 
 def _smooth(x: np.ndarray, valid: np.ndarray, blur_px: float) -> np.ndarray:
-    from roadtwin_stereo.road_model import _smooth as smooth
+    from roadtwin_stereo.road_model import smooth_valid as smooth
 
     return smooth(np.where(valid & np.isfinite(x), x, 0.0), valid & np.isfinite(x), blur_px)
 

@@ -287,10 +287,17 @@ class StereoDefects:
         :meth:`run_sequence` gathers it for a whole drive."""
         p = check_params(params or StereoDefectsParams(), self.name)
         r = self._residual(inputs, p)
+        ev = self._evidence(inputs, r, p) if fusion is not None and not r.transformed else None
+        return self._detect(inputs, p, r, fusion, ev)
+
+    def _detect(self, inputs: dict[str, Any], p: StereoDefectsParams, r: SimpleNamespace,
+                fusion: FrameFusion | None = None, ev: PairEvidence | None = None) -> StereoResult:
+        """Detection and meshing on a residual (:meth:`_residual`), fused with ``fusion``'s pairs
+        onto this pair's evidence ``ev`` when given."""
         transformed_in, disp, K, baseline, source, seg = r.transformed, r.disp, r.K, r.baseline, r.source, r.seg
         dt, road, depth_scale, z, valid_z, sigma = r.dt, r.road, r.depth_scale, r.z, r.valid, r.sigma
         if fusion is not None and not transformed_in:
-            z, valid_z, sigma = self._fused(inputs, fusion, r, p)
+            z, valid_z, sigma = self._fused(fusion, r, ev)
         metric = None
         if not transformed_in and (p.floor_depth_m > 0 or p.floor_area_m2 > 0):  # units: px of a raw disparity
             metric = metric_road_depth(z * sigma, disp, valid_z & (z > -p.k_grow), K, float(baseline))
@@ -330,21 +337,36 @@ class StereoDefects:
         if fuse_frames == 1:
             yield from (self.run(inputs, params) for inputs in frames)
             return
-        yield from fused_sequence(self, frames, params, int(fuse_frames), int(lookahead))
+        p = check_params(params or StereoDefectsParams(), self.name)
+
+        def prepare(inputs):           # each pair matched once: its residual serves its evidence and its detection
+            r = self._metric_residual(inputs, p)
+            return (inputs, r), self._evidence(inputs, r, p)
+
+        def detect(state, ev, others):
+            inputs, r = state
+            return self._detect(inputs, p, r, FrameFusion(others), ev)
+
+        yield from fused_sequence(frames, prepare, detect, int(fuse_frames), int(lookahead))
 
     def evidence(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> PairEvidence | None:
         """One pair's evidence for fusion (fusion.py step 1; None without road): its depth below
         the local road model, with ``inputs["cam_to_world"]``."""
         p = check_params(params or StereoDefectsParams(), self.name)
+        return self._evidence(inputs, self._metric_residual(inputs, p), p)
+
+    def _metric_residual(self, inputs: dict[str, Any], p: StereoDefectsParams) -> SimpleNamespace:
         r = self._residual(inputs, p)
         if r.transformed:
             raise RoadtwinError(f"{r.source}: fusing pairs needs metric disparity (K, baseline), not a transformed map")
+        return r
+
+    def _evidence(self, inputs: dict[str, Any], r: SimpleNamespace, p: StereoDefectsParams) -> PairEvidence | None:
         return pair_evidence(r.z, r.valid, r.sigma, r.disp, r.K, float(r.baseline), _pose(inputs, self.name), p.k_grow)
 
-    def _fused(self, inputs: dict[str, Any], fusion: FrameFusion, r: SimpleNamespace, p: StereoDefectsParams):
-        """(z, valid, sigma per pixel: ``z * sigma`` in px of this pair) of the pair fused with
-        ``fusion``'s other pairs (fusion.py), in the fused map's own measured noise units."""
-        ev = pair_evidence(r.z, r.valid, r.sigma, r.disp, r.K, float(r.baseline), _pose(inputs, self.name), p.k_grow)
+    def _fused(self, fusion: FrameFusion, r: SimpleNamespace, ev: PairEvidence | None):
+        """(z, valid, sigma per pixel: ``z * sigma`` in px of this pair) of the pair (evidence
+        ``ev``) fused with ``fusion``'s other pairs (fusion.py), in the fused map's own measured noise units."""
         residual, gain, _ = fusion.fuse(ev, r.valid)
         if residual is None:
             return r.z, r.valid, r.sigma

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .road_model import _smooth, robust_sigma
+from .road_model import robust_sigma, smooth_valid
 
 ROAD_BLUR_PX = 4.0  # smoothing of the road disparity that places a pixel on the road (its noise, not its shape)
 
@@ -72,7 +72,7 @@ def pair_evidence(z: np.ndarray, valid: np.ndarray, sigma: float, disp: np.ndarr
     if ok.sum() < 100:
         return None
     plane, height = _road_plane(road_px, ok, K, baseline)
-    road_disp = plane + _smooth(np.where(ok, road_px - plane, 0.0), ok, ROAD_BLUR_PX)
+    road_disp = plane + smooth_valid(np.where(ok, road_px - plane, 0.0), ok, ROAD_BLUR_PX)
     with np.errstate(invalid="ignore", divide="ignore"):
         m_per_px = np.where(road_disp > 0, height / road_disp, np.nan)
     depth = np.where(valid, -z * sigma * m_per_px, np.nan)
@@ -157,21 +157,24 @@ def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8) -> np.nda
     return out
 
 
-def fused_sequence(detector, frames, params, fuse_frames: int, lookahead: int):
-    """Per pair of ``frames`` (inputs with ``cam_to_world``), ``detector.run`` with the evidence
-    of the ``lookahead`` pairs after it and ``fuse_frames - 1 - lookahead`` before it; a pair's
-    result comes once its later pairs have arrived (StereoDefects.run_sequence)."""
+def fused_sequence(frames, prepare, detect, fuse_frames: int, lookahead: int):
+    """Per pair of ``frames``, in order, ``detect(state, evidence, others' evidence)`` with the
+    evidence of the ``lookahead`` pairs after it and ``fuse_frames - 1 - lookahead`` before it;
+    ``prepare(inputs) -> (state, evidence)`` runs once a pair. A pair's result comes once its
+    later pairs have arrived (StereoDefects.run_sequence); its state is dropped once detected
+    (only its evidence serves the pairs after it)."""
     before = fuse_frames - 1 - lookahead
-    window: deque = deque()   # (index, inputs, evidence) of the pairs still needed
+    window: deque = deque()   # [index, state, evidence] of the pairs still needed
     done = 0
 
     def emit(k: int):
-        inputs = next(i for j, i, _ in window if j == k)
-        others = [e for j, _, e in window if j != k and k - before <= j <= k + lookahead]
-        return detector.run(inputs, params, fusion=FrameFusion(others))
+        entry = next(e for e in window if e[0] == k)
+        others = [e[2] for e in window if e[0] != k and k - before <= e[0] <= k + lookahead]
+        state, entry[1] = entry[1], None
+        return detect(state, entry[2], others)
 
     for n, inputs in enumerate(frames):
-        window.append((n, inputs, detector.evidence(inputs, params)))
+        window.append([n, *prepare(inputs)])
         while done <= n - lookahead:
             yield emit(done)
             done += 1

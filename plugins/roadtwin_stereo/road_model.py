@@ -47,7 +47,7 @@ from scipy.interpolate import RectBivariateSpline
 MAD_TO_SIGMA = 1.4826
 
 
-def _smooth(res: np.ndarray, valid: np.ndarray, blur_px: float) -> np.ndarray:
+def smooth_valid(res: np.ndarray, valid: np.ndarray, blur_px: float) -> np.ndarray:
     """Normalised Gaussian smoothing that ignores invalid pixels (0 where too few are valid)."""
     import cv2
 
@@ -141,7 +141,7 @@ def _road_fit(e: np.ndarray, valid: np.ndarray, usable: np.ndarray, tile_px: int
         usable = valid
     bg = tile_background(e, usable, tile_px)
     bg += row_levels(e - bg, usable)[:, None]
-    rs = _smooth(e - bg, valid, blur_px)
+    rs = smooth_valid(e - bg, valid, blur_px)
     ref = rs[usable if noise_ref is None or noise_ref.sum() < 100 else noise_ref]
     sigma = robust_sigma(ref)
     return np.where(valid, (rs - float(np.median(ref))) / sigma, 0.0), bg, sigma
