@@ -11,7 +11,9 @@ steps (each a fresh AdamW, warm-up + cosine), so all arms spend the same P + R o
 
 Phase 2 of (a), (b) and a "finetune" (c) draw the same real batches (same phase seed).
 ``bn_stats="real"`` (``--bn-stats real``): after phase 2 every arm's batch-norm statistics are
-recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels).
+recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels);
+the run is evaluated with the trained statistics first (``as_trained`` in its JSON): the same
+weights both ways, so the report gives AdaBN's own effect, paired, without training twice.
 Nothing is selected on the evaluation frames: fixed schedules, the last weights.
 """
 from __future__ import annotations
@@ -132,10 +134,11 @@ def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path 
 
 
 def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Frames | None, device,
-              mix: dict | None = None, cache: Path | None = None, log=print, style: Frames | None = None):
+              mix: dict | None = None, cache: Path | None = None, log=print, style: Frames | None = None,
+              adapt: bool = True):
     """The model of one arm, trained; returns (model, phases info). With ``cfg.style``, the
     synthetic frames take their low frequencies from ``style``'s images (real frames the arm
-    may see; their labels are never read)."""
+    may see; their labels are never read). ``adapt``: apply ``cfg.bn_stats`` (see adapt_bn)."""
     phases = arm_phases(arm, cfg, seed, mix)
     data = {}
     if real is not None and arm in ("real", "pretrain", "mixed", "paste"):
@@ -153,13 +156,22 @@ def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Fram
         model = fresh_model(cfg, seed, device)
         infos = [train_phase(model, data, phases[0], cfg, device, log)]
     infos.append(train_phase(model, data, phases[1], cfg, device, log))
-    if cfg.bn_stats == "real":     # every arm alike; zero-shot: the train images (``style``), never their labels
-        frames = real if real is not None else style
-        if frames is None:
-            raise RoadtwinError(f"--bn-stats real: arm {arm} has no real train frames to take the statistics from")
-        layers = recalibrate_bn(model, data["real"][0] if "real" in data else to_device(frames, device)[0], device, cfg.batch)
-        infos[-1] = {**infos[-1], "bn_stats": {"from": "real train frames", "frames": len(frames.stems), "layers": layers}}
+    if adapt:
+        adapt_bn(model, cfg, arm, real, style, device, infos)
     return model, infos
+
+
+def adapt_bn(model, cfg: Config, arm: str, real: Frames | None, style: Frames | None, device, infos: list) -> None:
+    """With ``cfg.bn_stats == "real"``, AdaBN: the model's batch-norm statistics recomputed on the
+    arm's real train frames (zero-shot: the train images ``style``, never their labels), noted in
+    the last phase's info. Every arm alike."""
+    if cfg.bn_stats != "real":
+        return
+    frames = real if real is not None else style
+    if frames is None:
+        raise RoadtwinError(f"--bn-stats real: arm {arm} has no real train frames to take the statistics from")
+    layers = recalibrate_bn(model, to_device(frames, device)[0], device, cfg.batch)
+    infos[-1] = {**infos[-1], "bn_stats": {"from": "real train frames", "frames": len(frames.stems), "layers": layers}}
 
 
 def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: Frames, synth: Frames | None,
@@ -168,9 +180,16 @@ def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: 
     t0 = time.perf_counter()
     sub = real_subset(real, fraction, cfg.subset_seed) if arm != "zeroshot" else None
     # the style frames: the arm's real frames; zero-shot sees no real label, only the train images
-    model, infos = train_arm(arm, cfg, seed, sub, synth, device, mix, cache, log, style=sub if sub is not None else real)
+    style = sub if sub is not None else real
+    model, infos = train_arm(arm, cfg, seed, sub, synth, device, mix, cache, log, style=style, adapt=False)
     t1 = time.perf_counter()
-    i, u, kept = evaluate(model, to_device(evalset, device), device, cfg.batch, set(keep))
+    evaldev = to_device(evalset, device)
+    as_trained = None
+    if cfg.bn_stats == "real":   # the same weights evaluated with their trained statistics first: a paired AdaBN effect
+        i, u, _ = evaluate(model, evaldev, device, cfg.batch)
+        as_trained = {"I": i.tolist(), "U": u.tolist()}
+        adapt_bn(model, cfg, arm, sub, style, device, infos)
+    i, u, kept = evaluate(model, evaldev, device, cfg.batch, set(keep))
     steps = sum(p["steps"] for p in infos)
     train_s = sum(p["seconds"] for p in infos)
     return {"arm": arm, "letter": LETTER[arm], "fraction": fraction if arm != "zeroshot" else None, "seed": seed,
@@ -180,7 +199,8 @@ def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: 
             "real_frames": len(sub.stems) if sub else 0, "real_pothole_frames": int(len(sub.pothole_frames())) if sub else 0,
             "synthetic_frames": len(synth.stems) if synth is not None and arm in SYNTHETIC_ARMS else 0,
             "eval": {"folder": evalset.folder, "stems": evalset.stems},
-            "I": i.tolist(), "U": u.tolist(), "grid": {str(k): v for k, v in sorted(kept.items())}}
+            "I": i.tolist(), "U": u.tolist(), **({"as_trained": as_trained} if as_trained else {}),
+            "grid": {str(k): v for k, v in sorted(kept.items())}}
 
 
 def write_run(result: dict, out: Path) -> Path:

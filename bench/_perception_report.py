@@ -113,6 +113,18 @@ def _gain(summary: dict, key: str, arm: str, rs: list[dict], base: list[dict], n
     summary["gains"][key] = {"arm": arm, "over": f"{base[0]['name']}", "seeds": seeds, "moonshot": moonshot, **g}
 
 
+def _adabn(summary: dict, name: str, rs: list[dict], n_boot: int, boot_seed: int) -> None:
+    """AdaBN's own effect on the runs ``rs`` (``--bn-stats real``): the same weights evaluated with
+    the statistics of the real train frames against their trained ones, seeds pooled, paired."""
+    as_trained = [{**r, "I": r["as_trained"]["I"], "U": r["as_trained"]["U"]} for r in rs]
+    seeds = [r["seed"] for r in rs]
+    g = bootstrap_gain(*_pooled(as_trained, seeds), *_pooled(rs, seeds), n_boot=n_boot, seed=boot_seed)
+    for m in METRICS:
+        g[m]["as_trained"] = iou_table(*_pooled(as_trained, seeds))[m]
+        g[m]["per_seed"] = [iou_table(*_pooled(rs, [s]))[m] - iou_table(*_pooled(as_trained, [s]))[m] for s in seeds]
+    summary.setdefault("adabn", {})[name] = {"seeds": seeds, **g}
+
+
 def summarize(runs: list[dict], n_boot: int = 2000, boot_seed: int = 0) -> dict:
     groups: dict[str, list[dict]] = {}
     for r in sorted(runs, key=lambda r: ("abcde".index(r["letter"]), -(r["fraction"] or 0), r["seed"])):
@@ -138,6 +150,9 @@ def summarize(runs: list[dict], n_boot: int = 2000, boot_seed: int = 0) -> dict:
         for bf in (real_fracs if arm == "zeroshot" else [frac]):
             key = name if arm != "zeroshot" else f"zeroshot vs real@{round(bf * 100):g}%"
             _gain(summary, key, arm, rs, groups.get(f"real@{round(bf * 100):g}%", []), n_boot, boot_seed)
+    for name, rs in groups.items():
+        if all("as_trained" in r for r in rs):
+            _adabn(summary, name, rs, n_boot, boot_seed)
     # the moonshot: a synthetic arm with a share of the real frames against (a) with all of them
     for name, rs in groups.items():
         if rs[0]["arm"] in ("pretrain", "mixed") and rs[0]["fraction"] < 1 and 1.0 in real_fracs:
@@ -172,4 +187,14 @@ def markdown(summary: dict) -> str:
             lines.append(f"| {name} | {g['over']} | " + " | ".join(
                 f"{'+' if g[c]['gain'] >= 0 else ''}{_pt(g[c]['gain'])} [{_pt(g[c]['lo'])}, {_pt(g[c]['hi'])}]"
                 for c in cols) + " |")
+    if summary.get("adabn"):
+        lines += ["", "AdaBN (`--bn-stats real`): the same weights with the batch-norm statistics of their real train "
+                  "frames against their trained statistics (seeds pooled; paired bootstrap as above). The tables "
+                  "above are with AdaBN.", "",
+                  "| run | " + " | ".join(f"{c.replace('_fg', ' w/o bg').replace('_', ' ')}: as trained -> AdaBN gain"
+                                         for c in cols) + " |", "|" + "---|" * (len(cols) + 1)]
+        for name, g in summary["adabn"].items():
+            lines.append(f"| {name} | " + " | ".join(
+                f"{_pt(g[c]['as_trained'])} -> {'+' if g[c]['gain'] >= 0 else ''}{_pt(g[c]['gain'])} "
+                f"[{_pt(g[c]['lo'])}, {_pt(g[c]['hi'])}]" for c in cols) + " |")
     return "\n".join(lines) + "\n"

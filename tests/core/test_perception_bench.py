@@ -162,6 +162,24 @@ def test_bn_stats_real_is_recorded_with_the_frames_it_used(tmp_path):
     for run in (mixed, zero):
         assert run["config"]["bn_stats"] == "real"
         assert run["phases"][-1]["bn_stats"]["frames"] == n_train and run["phases"][-1]["bn_stats"]["layers"] > 0
+    # "as trained" is what the same run gives without AdaBN: the paired comparison is of the same weights
+    plain = tmp_path / "plain"
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--seeds", "0", "--fractions", "1",
+                       "--arms", "c", "e", "--mix", "0.5:constant", "--out", str(plain)]) == 0
+    for name, run in (("mixed_100", mixed), ("zeroshot_na", zero)):
+        without = json.loads((plain / f"run_{name}_seed0.json").read_text())
+        assert "as_trained" not in without
+        assert run["as_trained"] == {"I": without["I"], "U": without["U"]}
+        assert run["I"] != without["I"] or run["U"] != without["U"]      # the statistics changed the predictions
+    # the report's AdaBN gain: pooled pothole IoU after minus before
+    sys.path.insert(0, str(ROOT / "bench"))
+    from _perception_data import CLASSES
+    from _perception_report import summarize
+    summary = summarize([dict(mixed, _file="m")], n_boot=50)
+    k = CLASSES.index("pothole")      # the column of the run's per-frame I and U
+    iou = lambda i, u: np.sum(np.array(i)[:, k]) / np.sum(np.array(u)[:, k])
+    expected = iou(mixed["I"], mixed["U"]) - iou(mixed["as_trained"]["I"], mixed["as_trained"]["U"])
+    assert summary["adabn"]["mixed@100%"]["pothole"]["gain"] == pytest.approx(expected)
 
 
 def test_suite_pace_counts_the_jobs_that_shared_a_card():
