@@ -32,6 +32,7 @@ from ...usd.layout_io import read_layout
 from ...usd.library import ASSET_SUFFIXES, DEFECT_CLASS, library_asset_files, read_defect_asset, write_defect_asset
 from ...usd.town import TownParts, write_town
 from ...usd.validate import validate_stage
+from .library_cache import library_cache_root, load_model, model_key, store_model
 from .preview import write_preview
 from .preview_job import PREVIEW_RENDERER, render_preview, warm_up_renderer
 from .preview_scene import PreviewTown
@@ -48,14 +49,25 @@ class ComposeResult:
 
 
 def build_library(rules: ComposeRules, pm: PluginManager, runner=None,
-                  priors: dict[str, dict[str, FieldPrior]] | None = None) -> dict[str, list[DefectModel]]:
+                  priors: dict[str, dict[str, FieldPrior]] | None = None,
+                  cache: Path | None = None) -> dict[str, list[DefectModel]]:
     """``models_per_type`` seeded models per weighted type (the paper draws 1,000 instances from
     53 models); each model's randomness depends only on (seed, type, index). ``priors``
     (``--defect-priors``, :mod:`~roadtwin_core.town.param_priors`) redraw the parameters they name. Each is coarsened to
     the road mesh's edge length (:func:`~roadtwin_core.remesh.coarsen_defect`), the costly part:
-    ``runner`` (a local executor) spreads the models over its cores."""
+    ``runner`` (a local executor) spreads the models over its cores. ``cache``: a folder of
+    models made before by the same code (:mod:`.library_cache`); only the missing ones are made."""
+    priors = priors or {}
     items = [(t, k) for t in sorted(rules.type_weights) if rules.type_weights[t] > 0 for k in range(rules.models_per_type)]
-    models = (runner or SerialExecutor()).map(_library_model, (pm, rules, priors or {}), items)
+    keys = [model_key(pm.get("defect_types", t), t, k, rules.seed, rules.road_edge_m, priors.get(t)) if cache else None
+            for t, k in items]
+    models = [load_model(cache, key) if key else None for key in keys]
+    missing = [i for i, m in enumerate(models) if m is None]
+    made = (runner or SerialExecutor()).map(_library_model, (pm, rules, priors), [items[i] for i in missing])
+    for i, model in zip(missing, made):
+        models[i] = model
+        if keys[i]:
+            store_model(cache, keys[i], model)
     library: dict[str, list[DefectModel]] = {}
     for (t, _), model in zip(items, models):
         library.setdefault(t, []).append(model)
@@ -143,7 +155,9 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
     renderer from the start (on a machine's first run it compiles the renderer's kernels, beside
     the textures' helper instead of after it), and draws on the second core while the stage is
     written and validated. A plugin manager ``pm`` of the caller's cannot travel to another
-    process: the preview then runs here, at the end."""
+    process: the preview then runs here, at the end. The library's models come from the user
+    cache when the same code made them before (:mod:`.library_cache`), unless ``pm`` is the
+    caller's (its types may be made at run time)."""
     t0 = time.perf_counter()
     prop_rules = resolve_prop_rules(props)   # a bad rules file: one line before any work
     road_looks = resolve_road_looks(road_textures, road_material)
@@ -174,7 +188,8 @@ def compose(layout_path: str | Path, outdir: str | Path, *, defects: int | None 
                                        else TexturePrefetch(rules.seed, texture_side, scratch_dir(outdir, "textures")))
         result = _compose(layout_path, outdir, layout, rules, pm, merger_impl, report, textures, previewer, t0,
                           executor=executor, ray_address=ray_address, workers=workers, library_dir=library_dir,
-                          prop_rules=prop_rules, road_looks=road_looks, priors=priors)
+                          prop_rules=prop_rules, road_looks=road_looks, priors=priors,
+                          library_cache=None if preview_here else library_cache_root())
         for side in (texture_side, preview_side):    # what they printed, now that the run succeeded
             if side is not None:
                 side.replay_output()
@@ -218,12 +233,12 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
              report, textures: TexturePrefetch | TexturesNow, previewer: _HereOrThere | None, t0: float, *,
              executor: str, ray_address, workers, library_dir,
              prop_rules: tuple[PropRule, ...] = (), road_looks: RoadLooks = RoadLooks(),
-             priors: tuple[dict, str | None] = ({}, None)) -> ComposeResult:
+             priors: tuple[dict, str | None] = ({}, None), library_cache: Path | None = None) -> ComposeResult:
     runner = make_executor(executor, ray_address, workers)
     # Library and markings on the local cores only: a Ray map starts and stops a cluster, costing
     # more than they do.
     local = runner if runner.name == "local" else None
-    library = build_library(rules, pm, local, priors[0]) if rules.defect_count else {}
+    library = build_library(rules, pm, local, priors[0], library_cache) if rules.defect_count else {}
     if rules.library and rules.defect_count:
         folder = Path(library_dir) if library_dir else (layout_path.parent / rules.library)
         rules = add_library_folder(library, rules, folder)
