@@ -14,6 +14,8 @@ Phase 2 of (a), (b) and a "finetune" (c) draw the same real batches (same phase 
 recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels);
 the run is evaluated with the trained statistics first (``as_trained`` in its JSON): the same
 weights both ways, so the report gives AdaBN's own effect, paired, without training twice.
+``domain_bn`` (``--domain-bn``): arms (b) and (c) train with a batch-norm pair per layer, one
+for real and one for synthetic frames (DSBN, bench/_domain_bn.py); evaluation uses the real one.
 Nothing is selected on the evaluation frames: fixed schedules, the last weights.
 """
 from __future__ import annotations
@@ -29,6 +31,7 @@ from roadtwin_core.errors import RoadtwinError
 
 import _segnet
 from _perception_data import CLASSES, Frames, real_subset
+from _domain_bn import split_batchnorms
 from _perception_train import MEAN, STD, Phase, evaluate, recalibrate_bn, to_device, train_phase
 
 ARMS = ("real", "pretrain", "mixed", "paste", "zeroshot")
@@ -52,6 +55,7 @@ class Config:
     size: tuple | None = (512, 320)
     style: str | None = None      # "fda:BETA": synthetic frames take real frames' low frequencies
     bn_stats: str = "train"       # "real": BN statistics recomputed on the arm's real train frames after training
+    domain_bn: bool = False       # (b), (c): a BN pair per layer, real and synthetic frames apart (bench/_domain_bn.py)
 
 
 def run_name(arm: str, fraction: float | None) -> str:
@@ -66,10 +70,14 @@ def make_model(cfg: Config):
         raise RoadtwinError(str(exc)) from None
 
 
-def fresh_model(cfg: Config, seed: int, device):
+def fresh_model(cfg: Config, seed: int, device, domains: bool = False):
+    """The seed's initial network; ``domains``: its BNs split into real / synthetic pairs."""
     torch = _segnet_torch()
     torch.manual_seed(seed)                    # the same initial weights in every arm of a seed
-    m = make_model(cfg).to(device)
+    m = make_model(cfg)
+    if domains:
+        split_batchnorms(m)
+    m = m.to(device)
     if torch.device(device).type == "cuda":
         m = m.to(memory_format=torch.channels_last)
     return m
@@ -108,15 +116,17 @@ def arm_phases(arm: str, cfg: Config, seed: int, mix: dict | None = None) -> lis
     raise RoadtwinError(f"--arms: {arm!r} is not one of {', '.join(ARMS)}")
 
 
-def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path | None, log=print, style_dev=None):
+def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path | None, log=print, style_dev=None,
+                         domains: bool = False):
     """The P-step synthetic model of a seed (phase 1 of (b) and (e)): loaded from ``cache`` when
-    a run already made it, else trained (and saved there, atomically)."""
+    a run already made it, else trained (and saved there, atomically). ``domains``: with a BN pair
+    per layer (``--domain-bn``, arm (b)); phase 1 trains the synthetic ones."""
     torch = _segnet_torch()
     phase = arm_phases("pretrain", cfg, seed)[0]
     style = f"_{cfg.style.replace(':', '')}_r{style_dev.shape[0]}" if cfg.style and style_dev is not None else ""
     key = (f"pretrain_seed{seed}_{cfg.encoder}_w{cfg.width}_P{cfg.pretrain_steps}_b{cfg.batch}"
-           f"_n{synth_dev[0].shape[0]}{style}.pt")
-    model = fresh_model(cfg, seed, device)
+           f"_n{synth_dev[0].shape[0]}{style}{'_dsbn' if domains else ''}.pt")
+    model = fresh_model(cfg, seed, device, domains)
     path = Path(cache) / key if cache else None
     if path is not None and path.exists():
         saved = torch.load(path, map_location=device, weights_only=False)
@@ -150,10 +160,11 @@ def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Fram
         if cfg.style and style is not None:
             data["style"] = to_device(style, device)[0]
     if arm in ("pretrain", "zeroshot"):
-        model, first = pretrained_synthetic(cfg, seed, data["synth"], device, cache, log, data.get("style"))
+        model, first = pretrained_synthetic(cfg, seed, data["synth"], device, cache, log, data.get("style"),
+                                            domains=cfg.domain_bn and arm == "pretrain")
         infos = [first]
     else:
-        model = fresh_model(cfg, seed, device)
+        model = fresh_model(cfg, seed, device, domains=cfg.domain_bn and arm == "mixed")
         infos = [train_phase(model, data, phases[0], cfg, device, log)]
     infos.append(train_phase(model, data, phases[1], cfg, device, log))
     if adapt:

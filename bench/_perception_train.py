@@ -14,6 +14,7 @@ import numpy as np
 
 from roadtwin_core.datasets import IGNORE_INDEX
 
+from _domain_bn import set_real_count
 from _perception_data import CLASSES, POTHOLE
 
 MEAN, STD = (0.45, 0.45, 0.45), (0.25, 0.25, 0.25)
@@ -199,6 +200,11 @@ def train_phase(model, data: dict, phase: Phase, cfg, device, log=print) -> dict
         has = (labels == POTHOLE).flatten(1).any(1).nonzero()[:, 0]
         donors = (data["real"][0][has], labels[has])
     cuda = torch.device(device).type == "cuda"
+    # a batch is its real frames first (phase.counts' order), then the synthetic ones: domain BNs
+    # (bench/_domain_bn.py) normalize each part with its own pair
+    if list(phase.counts)[:1] != ["real"] and phase.counts.get("real", 0):
+        raise ValueError(f"phase {phase.name}: real frames must come first in a batch ({list(phase.counts)})")
+    set_real_count(model, phase.counts.get("real", 0))
     model.train()
     t0, losses = time.perf_counter(), []
     for step in range(phase.steps):
@@ -227,6 +233,7 @@ def train_phase(model, data: dict, phase: Phase, cfg, device, log=print) -> dict
             log(f"    {phase.name} step {step + 1}/{phase.steps} loss {value:.3f} ({time.perf_counter() - t0:.0f} s)")
     if cuda:
         torch.cuda.synchronize()
+    set_real_count(model, None)
     return {"name": phase.name, "steps": phase.steps, "seconds": round(time.perf_counter() - t0, 2),
             "counts": phase.counts, "paste": phase.paste, "loss": losses}
 

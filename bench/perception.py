@@ -87,7 +87,8 @@ def parse_arms(names) -> list[str]:
 def config_of(args) -> Config:
     return Config(steps=args.steps, pretrain_steps=args.pretrain_steps, batch=args.batch, lr=args.lr, width=args.width,
                   encoder=args.encoder, subset_seed=args.subset_seed, size=parse_size(args.size),
-                  style=getattr(args, "style", None), bn_stats=getattr(args, "bn_stats", "train"))
+                  style=getattr(args, "style", None), bn_stats=getattr(args, "bn_stats", "train"),
+                  domain_bn=bool(getattr(args, "domain_bn", False)))
 
 
 def prepare(args, log=print) -> dict:
@@ -297,6 +298,8 @@ def _run_options(t) -> None:
     t.add_argument("--size", default="512x320", help="train/eval size WIDTHxHEIGHT (default 512x320)")
     t.add_argument("--bn-stats", choices=BN_STATS, default="train", help="real: after training, every arm's batch-norm "
                    "statistics recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels)")
+    t.add_argument("--domain-bn", action="store_true", help="(b), (c): a batch-norm pair per layer, one for real "
+                   "and one for synthetic frames (DSBN); evaluation with the real one")
     t.add_argument("--style", default=None, help="fda:BETA: Fourier domain adaptation of the synthetic frames to "
                    "the arm's real train images (zero-shot: all train images, never their labels); e.g. fda:0.01")
     t.add_argument("--limit-frames", type=int, default=None, help="first N frames of each folder (smoke runs)")

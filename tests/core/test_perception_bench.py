@@ -182,6 +182,62 @@ def test_bn_stats_real_is_recorded_with_the_frames_it_used(tmp_path):
     assert summary["adabn"]["mixed@100%"]["pothole"]["gain"] == pytest.approx(expected)
 
 
+def test_domain_bn_normalizes_real_and_synthetic_frames_apart():
+    """DSBN's closed form: in a training step whose batch is 3 real then 5 synthetic frames, the
+    real BN's running mean moves by momentum x the real frames' channel means only, the synthetic
+    one's by those of the synthetic frames; each part's output is standardized by its own batch
+    statistics; evaluation uses the real BN alone (its output = the real BN module's own)."""
+    torch = pytest.importorskip("torch")
+    _bench()
+    from _domain_bn import set_real_count, split_batchnorms
+
+    torch.manual_seed(0)
+    nn = torch.nn
+    model = nn.Sequential(nn.Conv2d(3, 4, 1), nn.BatchNorm2d(4, momentum=0.5))
+    split = split_batchnorms(model)
+    pair = model[1]
+    real_x = torch.randn(3, 3, 6, 5)
+    synth_x = 4.0 + 3.0 * torch.randn(5, 3, 6, 5)          # another domain: other mean and spread
+    with torch.no_grad():
+        feats = model[0](torch.cat([real_x, synth_x]))
+    model.train()
+    set_real_count(model, 3)
+    with torch.no_grad():
+        out = model(torch.cat([real_x, synth_x]))
+    mean_real, mean_synth = feats[:3].mean((0, 2, 3)), feats[3:].mean((0, 2, 3))
+    assert torch.allclose(pair.real.running_mean, 0.5 * mean_real, atol=1e-5)
+    assert torch.allclose(pair.synth.running_mean, 0.5 * mean_synth, atol=1e-5)
+    for part in (out[:3], out[3:]):                      # each part standardized on its own
+        assert torch.allclose(part.mean((0, 2, 3)), torch.zeros(4), atol=1e-4)
+        assert torch.allclose(part.var((0, 2, 3), unbiased=False), torch.ones(4), atol=1e-2)
+    model.eval()
+    with torch.no_grad():
+        assert torch.equal(model(real_x), pair.real(model[0](real_x)))
+    assert split.n_real == 3 and not isinstance(pair.real, type(pair))
+
+
+def test_domain_bn_arms_run_and_are_recorded(tmp_path):
+    """--domain-bn: arms (b) and (c) train with BN pairs (one step each on the tiny data), the run
+    JSON records it, and a single-domain arm (a) is the same run as without it."""
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    common = ["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--seeds", "0", "--fractions", "1",
+              "--mix", "0.5:constant"]
+    assert bench.main(common + ["--arms", "a", "b", "c", "--domain-bn", "--out", str(tmp_path / "dsbn")]) == 0
+    assert bench.main(common + ["--arms", "a", "--out", str(tmp_path / "plain")]) == 0
+    runs = {n: json.loads((tmp_path / "dsbn" / f"run_{n}_100_seed0.json").read_text()) for n in ("real", "pretrain", "mixed")}
+    assert all(r["config"]["domain_bn"] for r in runs.values())
+    plain = json.loads((tmp_path / "plain" / "run_real_100_seed0.json").read_text())
+    assert runs["real"]["I"] == plain["I"] and runs["real"]["U"] == plain["U"]
+    # (b)'s synthetic phase 1 was a model with BN pairs: its cached weights hold both of each
+    torch = pytest.importorskip("torch")
+    cached = [p for p in (tmp_path / "dsbn").rglob("pretrain_seed0_*.pt")]
+    assert [p.name.endswith("_dsbn.pt") for p in cached] == [True]
+    state = torch.load(cached[0], weights_only=False)["state"]
+    assert any(".real.running_mean" in k for k in state) and any(".synth.running_mean" in k for k in state)
+
+
 def test_suite_pace_counts_the_jobs_that_shared_a_card():
     """The 2 x H100 CV of 2026-11-27: 3,000-step CV jobs took 420 s with four jobs on each card; a
     4,500-step run then shared its card with one other and took 311-314 s. The old estimate (the
