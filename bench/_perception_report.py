@@ -61,6 +61,15 @@ def bootstrap_gain(ia, ua, ib, ub, n_boot: int = 2000, seed: int = 0, level: flo
     return out
 
 
+TWO_DOMAIN_ARMS = ("pretrain", "mixed")     # the arms --domain-bn changes; the others are the same runs without it
+
+
+def _comparable(run: dict) -> dict:
+    """A run's configuration as far as it must match the others': ``domain_bn`` apart (it changes
+    only (b) and (c), checked among them)."""
+    return {k: v for k, v in run["config"].items() if k != "domain_bn"}
+
+
 def load_runs(paths) -> list[dict]:
     """Run JSONs (files, or folders holding run_*.json); the same (arm, fraction, seed) twice must
     agree, and every run must be evaluated on the same frames."""
@@ -78,9 +87,12 @@ def load_runs(paths) -> list[dict]:
             raise RoadtwinError(f"{f}: not a run JSON of bench/perception.py") from None
         if r["eval"]["stems"] != (runs[0]["eval"]["stems"] if runs else r["eval"]["stems"]):
             raise RoadtwinError(f"{f}: evaluated on other frames than {files[0]} ({r['eval']['folder']})")
-        if runs and r["config"] != runs[0]["config"]:
-            diff = sorted(k for k in r["config"] if r["config"][k] != runs[0]["config"].get(k))
+        if runs and _comparable(r) != _comparable(runs[0]):
+            diff = sorted(k for k in r["config"] if _comparable(r).get(k) != _comparable(runs[0]).get(k))
             raise RoadtwinError(f"{f}: trained with another configuration than {runs[0]['_file']} ({', '.join(diff)})")
+        two = [x for x in runs + [r] if x["arm"] in TWO_DOMAIN_ARMS]
+        if len({bool(x["config"].get("domain_bn")) for x in two}) > 1:
+            raise RoadtwinError(f"{f}: runs with and without --domain-bn among arms (b) and (c)")
         if key in seen:
             if seen[key]["I"] != r["I"]:
                 raise RoadtwinError(f"{f}: run {r['name']} seed {r['seed']} given twice with other results")

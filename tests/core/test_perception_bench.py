@@ -225,7 +225,7 @@ def test_domain_bn_arms_run_and_are_recorded(tmp_path):
     common = ["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--seeds", "0", "--fractions", "1",
               "--mix", "0.5:constant"]
     assert bench.main(common + ["--arms", "a", "b", "c", "--domain-bn", "--out", str(tmp_path / "dsbn")]) == 0
-    assert bench.main(common + ["--arms", "a", "--out", str(tmp_path / "plain")]) == 0
+    assert bench.main(common + ["--arms", "a", "c", "--out", str(tmp_path / "plain")]) == 0
     runs = {n: json.loads((tmp_path / "dsbn" / f"run_{n}_100_seed0.json").read_text()) for n in ("real", "pretrain", "mixed")}
     assert all(r["config"]["domain_bn"] for r in runs.values())
     plain = json.loads((tmp_path / "plain" / "run_real_100_seed0.json").read_text())
@@ -236,6 +236,14 @@ def test_domain_bn_arms_run_and_are_recorded(tmp_path):
     assert [p.name.endswith("_dsbn.pt") for p in cached] == [True]
     state = torch.load(cached[0], weights_only=False)["state"]
     assert any(".real.running_mean" in k for k in state) and any(".synth.running_mean" in k for k in state)
+    # a report may take (a) from a run without the option (the same run), never (c) both ways
+    sys.path.insert(0, str(ROOT / "bench"))
+    from _perception_report import load_runs
+    from roadtwin_core.errors import RoadtwinError
+
+    assert len(load_runs([tmp_path / "plain" / "run_real_100_seed0.json", tmp_path / "dsbn" / "run_mixed_100_seed0.json"])) == 2
+    with pytest.raises(RoadtwinError, match="with and without --domain-bn"):
+        load_runs([tmp_path / "plain" / "run_mixed_100_seed0.json", tmp_path / "dsbn" / "run_pretrain_100_seed0.json"])
 
 
 def test_suite_pace_counts_the_jobs_that_shared_a_card():
