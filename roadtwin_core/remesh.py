@@ -96,10 +96,37 @@ def coarsen_defect(model, edge_m: float, tol_m: float | None = None, volume_rtol
     return model
 
 
+def locate_linear(vertices: np.ndarray, tris: np.ndarray, xy: np.ndarray):
+    """Per query point ``xy`` (P, 2): the index of a triangle of ``(vertices, tris)`` holding it in
+    XY (-1 outside all; on a shared edge, the lowest index) and ``vertices``' z linearly
+    interpolated there (0 outside). Candidates from an STR-tree of the triangles' bounding boxes
+    (shapely/GEOS), then barycentric coordinates of each (point, candidate) pair."""
+    a, b, c = (vertices[tris[:, k]] for k in range(3))
+    lo = np.minimum(np.minimum(a[:, :2], b[:, :2]), c[:, :2])
+    hi = np.maximum(np.maximum(a[:, :2], b[:, :2]), c[:, :2])
+    tree = shapely.STRtree(shapely.box(lo[:, 0], lo[:, 1], hi[:, 0], hi[:, 1]))
+    q, t = tree.query(shapely.points(xy), predicate="intersects")
+    e1, e2 = b[t, :2] - a[t, :2], c[t, :2] - a[t, :2]
+    det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    dx, dy = xy[q, 0] - a[t, 0], xy[q, 1] - a[t, 1]
+    l1 = (dx * e2[:, 1] - dy * e2[:, 0]) / det
+    l2 = (e1[:, 0] * dy - e1[:, 1] * dx) / det
+    eps = -1e-9
+    inside = (l1 >= eps) & (l2 >= eps) & (1.0 - l1 - l2 >= eps)
+    q, t, l1, l2 = q[inside], t[inside], l1[inside], l2[inside]
+    order = np.lexsort((t, q))                      # per point, its lowest triangle first
+    q, t, l1, l2 = q[order], t[order], l1[order], l2[order]
+    first = np.r_[True, q[1:] != q[:-1]]
+    q, t, l1, l2 = q[first], t[first], l1[first], l2[first]
+    owner = np.full(len(xy), -1, dtype=np.int64)
+    z = np.zeros(len(xy))
+    owner[q] = t
+    z[q] = (1.0 - l1 - l2) * a[t, 2] + l1 * b[t, 2] + l2 * c[t, 2]
+    return owner, z
+
+
 def _coarsen(model, edge_m: float, tol: float):
     """One error-driven fit (see :func:`coarsen_defect`); None when it cannot be done."""
-    from matplotlib.tri import LinearTriInterpolator, Triangulation   # 0.7 s, for this fit only
-
     v, loop = model.vertices, np.asarray(model.boundary)
     # Loop: Douglas-Peucker subset, then put back vertices where a gap exceeds edge_m / 4.
     ring = np.vstack([v[loop, :2], v[loop[:1], :2]])
@@ -141,14 +168,12 @@ def _coarsen(model, edge_m: float, tol: float):
         if len(out_t["vertices"]) != len(ids):
             return None                      # Triangle had to add points: keep the full model
         tris = out_t["triangles"].astype(np.int64)
-        tri = Triangulation(v[ids, 0], v[ids, 1], tris)
-        z = LinearTriInterpolator(tri, v[ids, 2])(v[interior, 0], v[interior, 1])
-        err = np.abs(np.ma.filled(z, 0.0) - v[interior, 2])   # outside the coarse loop: the road plane
+        owner, z = locate_linear(v[ids], tris, v[interior, :2])
+        err = np.abs(np.where(owner >= 0, z, 0.0) - v[interior, 2])   # outside the coarse loop: the road plane
         bad = err > tol
         bad[np.isin(interior, chosen)] = False
         if not bad.any():
             break
-        owner = tri.get_trifinder()(v[interior, 0], v[interior, 1])
         cand = np.flatnonzero(bad)
         order = cand[np.lexsort((-err[cand], owner[cand]))]       # per triangle, worst first
         first = np.r_[True, owner[order][1:] != owner[order][:-1]]

@@ -72,3 +72,31 @@ def test_far_fewer_triangles(pairs):
     full = sum(len(f.faces) for _, f, _ in pairs)
     coarse = sum(len(c.faces) for _, _, c in pairs)
     assert coarse <= full / 2.5, (full, coarse)
+
+
+def test_point_location_matches_matplotlib():
+    """The coarsening's point location and linear interpolation (remesh.locate_linear) against
+    matplotlib's trapezoid-map finder and LinearTriInterpolator on a random Delaunay mesh,
+    with points inside, outside and on its vertices."""
+    from scipy.spatial import Delaunay
+
+    from roadtwin_core.remesh import locate_linear
+
+    rng = np.random.default_rng(3)
+    v = np.column_stack([rng.random((60, 2)), rng.normal(0, 0.02, 60)])
+    tris = Delaunay(v[:, :2]).simplices.astype(np.int64)
+    q = np.vstack([rng.random((500, 2)) * 1.4 - 0.2, v[:, :2]])
+    owner, z = locate_linear(v, tris, q)
+    tri = Triangulation(v[:, 0], v[:, 1], tris)
+    ref_z = LinearTriInterpolator(tri, v[:, 2])(q[:, 0], q[:, 1])
+    ref_owner = tri.get_trifinder()(q[:, 0], q[:, 1])
+    assert np.array_equal(owner >= 0, ref_owner >= 0)
+    inside = ref_owner >= 0
+    assert np.allclose(z[inside], np.ma.filled(ref_z, np.nan)[inside], atol=1e-12)
+    assert (z[~inside] == 0).all()
+    # where the two finders name different triangles (a point on a shared edge), both hold it
+    for i in np.flatnonzero(inside & (owner != ref_owner)):
+        a, b, c = v[tris[owner[i]], :2]
+        m = np.column_stack([b - a, c - a])
+        l1, l2 = np.linalg.solve(m, q[i] - a)
+        assert min(l1, l2, 1 - l1 - l2) >= -1e-9
