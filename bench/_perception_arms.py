@@ -7,7 +7,9 @@ steps (each a fresh AdamW, warm-up + cosine), so all arms spend the same P + R o
                round(ratio * batch) synthetic frames and the rest real; ratio and schedule come
                from the cross-validation over the train frames (bench/_perception_cv.py) or --mix
   paste    (d) P + R real with real pothole pixels pasted into other real frames (same rows)
-  zeroshot (e) P synthetic + R synthetic: never sees a real frame (no fraction)
+  zeroshot (e) P synthetic + R synthetic: never sees a real frame (no fraction); with
+               --pseudo-labels KEEP, R on the real train images pseudo-labelled by the P-step
+               model (never their labels) mixed 1:1 with synthetic frames (bench/_pseudo_labels.py)
 
 Phase 2 of (a), (b) and a "finetune" (c) draw the same real batches (same phase seed).
 ``bn_stats="real"`` (``--bn-stats real``): after phase 2 every arm's batch-norm statistics are
@@ -27,11 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
+from roadtwin_core.datasets import IGNORE_INDEX
 from roadtwin_core.errors import RoadtwinError
 
 import _segnet
 from _perception_data import CLASSES, Frames, real_subset
 from _domain_bn import split_batchnorms
+from _pseudo_labels import pseudo_labels
 from _perception_train import MEAN, STD, Phase, evaluate, recalibrate_bn, to_device, train_phase
 
 ARMS = ("real", "pretrain", "mixed", "paste", "zeroshot")
@@ -56,6 +60,7 @@ class Config:
     style: str | None = None      # "fda:BETA": synthetic frames take real frames' low frequencies
     bn_stats: str = "train"       # "real": BN statistics recomputed on the arm's real train frames after training
     domain_bn: bool = False       # (b), (c): a BN pair per layer, real and synthetic frames apart (bench/_domain_bn.py)
+    pseudo_keep: float | None = None  # (e): phase 2 on pseudo-labelled real train images + synthetic (bench/_pseudo_labels.py)
 
 
 def run_name(arm: str, fraction: float | None) -> str:
@@ -103,6 +108,9 @@ def arm_phases(arm: str, cfg: Config, seed: int, mix: dict | None = None) -> lis
         return [Phase("real phase 1", P, real, seed=seed * 1000 + 2), Phase("real", R, real, seed=s2)]
     if arm == "pretrain":
         return [Phase("synthetic", P, synth, seed=s1), Phase("real", R, real, seed=s2)]
+    if arm == "zeroshot" and cfg.pseudo_keep:
+        return [Phase("synthetic", P, synth, seed=s1),
+                Phase("pseudo-labelled real + synthetic", R, mix_counts(B, 0.5), seed=seed * 1000 + 4)]
     if arm == "zeroshot":
         return [Phase("synthetic", P, synth, seed=s1), Phase("synthetic phase 2", R, synth, seed=seed * 1000 + 4)]
     if arm == "paste":
@@ -163,6 +171,8 @@ def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Fram
         model, first = pretrained_synthetic(cfg, seed, data["synth"], device, cache, log, data.get("style"),
                                             domains=cfg.domain_bn and arm == "pretrain")
         infos = [first]
+        if arm == "zeroshot" and cfg.pseudo_keep:
+            adapt_with_pseudo_labels(model, cfg, style, data, device, infos)
     else:
         model = fresh_model(cfg, seed, device, domains=cfg.domain_bn and arm == "mixed")
         infos = [train_phase(model, data, phases[0], cfg, device, log)]
@@ -170,6 +180,19 @@ def train_arm(arm: str, cfg: Config, seed: int, real: Frames | None, synth: Fram
     if adapt:
         adapt_bn(model, cfg, arm, real, style, device, infos)
     return model, infos
+
+
+def adapt_with_pseudo_labels(model, cfg: Config, style: Frames | None, data: dict, device, infos: list) -> None:
+    """Zero-shot with ``cfg.pseudo_keep`` (CBST): the real train images, never their labels,
+    labelled by the phase-1 model (per class its most confident ``pseudo_keep`` share), become
+    the "real" source of phase 2."""
+    if style is None:
+        raise RoadtwinError("--pseudo-labels: the zero-shot arm has no real train images to label")
+    torch = _segnet_torch()
+    images = torch.from_numpy(np.ascontiguousarray(style.images)).to(device)    # the images only
+    labels, info = pseudo_labels(model, images, device, cfg.batch, cfg.pseudo_keep, IGNORE_INDEX)
+    data["real"] = (images, labels)
+    infos[-1] = {**infos[-1], "pseudo_labels": info}
 
 
 def adapt_bn(model, cfg: Config, arm: str, real: Frames | None, style: Frames | None, device, infos: list) -> None:

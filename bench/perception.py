@@ -85,10 +85,13 @@ def parse_arms(names) -> list[str]:
 
 
 def config_of(args) -> Config:
+    keep = getattr(args, "pseudo_labels", None)
+    if keep is not None and not 0 < keep <= 1:
+        raise RoadtwinError(f"--pseudo-labels: KEEP is a share of pixels per class, in (0, 1], not {keep:g}")
     return Config(steps=args.steps, pretrain_steps=args.pretrain_steps, batch=args.batch, lr=args.lr, width=args.width,
                   encoder=args.encoder, subset_seed=args.subset_seed, size=parse_size(args.size),
                   style=getattr(args, "style", None), bn_stats=getattr(args, "bn_stats", "train"),
-                  domain_bn=bool(getattr(args, "domain_bn", False)))
+                  domain_bn=bool(getattr(args, "domain_bn", False)), pseudo_keep=getattr(args, "pseudo_labels", None))
 
 
 def prepare(args, log=print) -> dict:
@@ -300,6 +303,10 @@ def _run_options(t) -> None:
                    "statistics recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels)")
     t.add_argument("--domain-bn", action="store_true", help="(b), (c): a batch-norm pair per layer, one for real "
                    "and one for synthetic frames (DSBN); evaluation with the real one")
+    t.add_argument("--pseudo-labels", type=float, default=None, metavar="KEEP", help="(e): after its synthetic "
+                   "phase, the real train images (never their labels) labelled by the model, per class its most confident "
+                   "KEEP share of pixels (CBST); phase 2 trains on them mixed 1:1 with synthetic frames (unsupervised "
+                   "domain adaptation: report it apart from zero-shot)")
     t.add_argument("--style", default=None, help="fda:BETA: Fourier domain adaptation of the synthetic frames to "
                    "the arm's real train images (zero-shot: all train images, never their labels); e.g. fda:0.01")
     t.add_argument("--limit-frames", type=int, default=None, help="first N frames of each folder (smoke runs)")

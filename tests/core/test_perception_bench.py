@@ -246,6 +246,54 @@ def test_domain_bn_arms_run_and_are_recorded(tmp_path):
         load_runs([tmp_path / "plain" / "run_mixed_100_seed0.json", tmp_path / "dsbn" / "run_pretrain_100_seed0.json"])
 
 
+def test_class_balanced_thresholds_keep_the_share_of_each_class():
+    """CBST's rule on a closed form: class 1 predicted with confidences evenly spread over
+    (0.3, 0.9], class 2 over (0.6, 1.0]: keeping 25 % puts class 1's threshold at 0.75 and class
+    2's at 0.9 (to a histogram bin), whatever the other class holds; a class nobody predicts gets 1."""
+    torch = pytest.importorskip("torch")
+    _bench()
+    from _pseudo_labels import BINS, class_thresholds
+
+    n = 40000
+    conf = torch.cat([0.3 + 0.6 * (torch.arange(n) + 1) / n, 0.6 + 0.4 * (torch.arange(n) + 1) / n])
+    pred = torch.cat([torch.full((n,), 1), torch.full((n,), 2)]).to(torch.uint8)
+    t = class_thresholds([conf[: n // 2 * 3], conf[n // 2 * 3:]], [pred[: n // 2 * 3], pred[n // 2 * 3:]], 4, 0.25)
+    assert t[1].item() == pytest.approx(0.75, abs=2 / BINS) and t[2].item() == pytest.approx(0.9, abs=2 / BINS)
+    assert t[0].item() == 1.0 and t[3].item() == 1.0
+    kept1 = (conf[:n] >= t[1]).float().mean().item()
+    assert kept1 == pytest.approx(0.25, abs=0.01)
+
+
+def test_pseudo_labels_never_read_the_real_labels(tmp_path):
+    """--pseudo-labels: the zero-shot arm trains phase 2 on the real train images labelled by its
+    own model: a copy of the real data whose train labels are all replaced gives the same run
+    (one step each, tiny data), and the run records what it kept."""
+    pytest.importorskip("torch")
+    from PIL import Image
+
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    scrambled = tmp_path / "real"
+    shutil.copytree(TINY, scrambled)
+    for f in (scrambled / "train/labels").glob("*.png"):
+        a = np.array(Image.open(f))
+        Image.fromarray(np.full_like(a, 3)).save(f)              # every pixel a pothole
+    runs = {}
+    for name, real in (("orig", TINY), ("scrambled", scrambled)):
+        out = tmp_path / name
+        assert bench.main(["train", "--real", str(real), "--synthetic", str(synth), *SMALL, "--seeds", "0",
+                           "--fractions", "1", "--arms", "e", "--pseudo-labels", "0.5", "--out", str(out)]) == 0
+        runs[name] = json.loads((out / "run_zeroshot_na_seed0.json").read_text())
+    assert runs["orig"]["I"] == runs["scrambled"]["I"] and runs["orig"]["U"] == runs["scrambled"]["U"]
+    info = runs["orig"]["phases"][0]["pseudo_labels"]
+    assert info["keep"] == 0.5 and info["frames"] == len(list((TINY / "train/images").glob("*")))
+    assert 0 < info["kept_share"] < 1          # at least KEEP of each class (to a histogram bin: a 1-step model's
+    assert all(k <= n for k, n in zip(info["kept_pixels"], info["predicted_pixels"]))   # confidences tie)
+    assert runs["orig"]["phases"][1]["counts"] == {"real": 1, "synth": 1}
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "e",
+                       "--pseudo-labels", "1.5", "--out", str(tmp_path / "bad")]) == 2
+
+
 def test_suite_pace_counts_the_jobs_that_shared_a_card():
     """The 2 x H100 CV of 2026-11-27: 3,000-step CV jobs took 420 s with four jobs on each card; a
     4,500-step run then shared its card with one other and took 311-314 s. The old estimate (the
