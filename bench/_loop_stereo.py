@@ -152,10 +152,10 @@ def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tu
                    floors: list[tuple[float, float]], cache: Path | None = None,
                    reject: tuple[float, float] | None = None, border_px: int = 0,
                    k_region: float | None = None, refit_k: float | None = None,
-                   fuse: tuple[tuple[int, int], ...] = ((1, 0),)) -> list[dict]:
-    """One summary per (floor_depth_m, floor_area_m2) in ``floors`` x (K, L) in ``fuse`` (K pairs
-    fused on each, L of them after it: StereoDefects.run_sequence; (1, 0) = each pair alone), all
-    on the same disparity maps."""
+                   fuse: tuple[tuple, ...] = ((1, 0),)) -> list[dict]:
+    """One summary per (floor_depth_m, floor_area_m2) in ``floors`` x (K, L[, options]) in ``fuse``
+    (K pairs fused on each, L of them after it, the options StereoDefects.run_sequence's keywords;
+    (1, 0) = each pair alone), all on the same disparity maps."""
     from roadtwin_stereo import StereoDefects
 
     rec = StereoDefects()
@@ -176,17 +176,18 @@ def stereo_figures(bag, instances: dict, truth, classes: list[str], subpixel: tu
     extra = {} if k_region is None else {"k_region": k_region}
     extra.update({} if refit_k is None else {"road_refit_k": refit_k})
     out = []
-    for (depth_m, area_m2), (k_pairs, lookahead) in [(fl, fu) for fl in floors for fu in fuse]:
+    for (depth_m, area_m2), (k_pairs, lookahead, *opts) in [(fl, fu) for fl in floors for fu in fuse]:
         params = rec.Params(floor_depth_m=depth_m, floor_area_m2=area_m2, border_px=border_px, **extra)
         acc = {"rows": [], "det": 0, "false": 0, "per_frame": []}
-        for fr, res in zip(frames, rec.run_sequence(inputs, params, fuse_frames=k_pairs, lookahead=lookahead)):
+        for fr, res in zip(frames, rec.run_sequence(inputs, params, fuse_frames=k_pairs, lookahead=lookahead,
+                                                           **(opts[0] if opts else {}))):
             f = frame_figures(fr, res, instances, truth)
             acc["rows"] += f["rows"]
             acc["det"] += f["detections"]
             acc["false"] += f["false"]
             acc["per_frame"].append(sum(1 for r in f["rows"] if r["dist_m"] <= NEAR_M))
         out.append(_summary(acc["rows"], acc["det"], acc["false"], len(frames), acc["per_frame"]))
-        print(f"  floor {depth_m:g} m, {area_m2:g} m2, fuse {k_pairs}:{lookahead} scored", file=sys.stderr,
+        print(f"  floor {depth_m:g} m, {area_m2:g} m2, fuse {k_pairs}:{lookahead} {opts or ''} scored", file=sys.stderr,
               flush=True)
     return out
 

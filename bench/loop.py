@@ -30,7 +30,7 @@ reported cases stay unseen: ``tune_highway_D_seed23``, ``tune_town_seed3``.
     PYTHONPATH=.:plugins .venv/bin/python bench/loop.py [--cases town,highway_D] [--duration 3]
         [--size 1280x720] [--out out/loop] [--reuse] [--subpixel 6,2 | 0]
         [--floor DEPTH_M,AREA_M2 ...] [--reject E,R | 0] [--border-px N] [--k-region K | 0] [--refit-k K | 0]
-        [--fuse K[:L][,K[:L]...]] [--no-surface]
+        [--fuse K[:L][:refit][:rows][,...]] [--no-surface]
 
 ``--floor``: the detector's physical floor (StereoDefectsParams floor_depth_m, floor_area_m2);
 repeated, every value is scored on the same disparity maps (a sweep). ``--reject E,R``: sub-pixel
@@ -43,8 +43,10 @@ potholes are missed: bench/loop_missed.py). ``--refit-k K``: the local road mode
 the regions reaching K noise units below and above the road (StereoDefectsParams road_refit_k; 0 =
 off; road_model.py step 5). ``--fuse K[:L]``: each pair is detected on the evidence of K pairs fused
 on it through the drive's poses, L of them after it and the rest before (StereoDefects.run_sequence,
-roadtwin_stereo/fusion.py; 1 = each pair alone, the default); a comma list is a sweep on the same
-maps; "found" is still scored per view, on that view's own detections.
+roadtwin_stereo/fusion.py; 1 = each pair alone, the default); ``K:L:refit``: the local road model
+fitted again on the fused map, ``K:L:rows``: the fused map's noise measured in 6 bands of rows too
+(fusion.FusionOptions; both may be given); a comma list is a sweep on the same maps; "found" is still
+scored per view, on that view's own detections.
 
 Targets (issue 20): surface RMSE <= 5 mm; footprint IoU >= 0.8 and depth error <= 1 cm within
 10 m; >= 95 % of potholes in view found on undulating roads.
@@ -172,12 +174,39 @@ def _print_stereo(st: dict, how: str) -> None:
 def _print_sweep(case: str, configs: list, sts: list[dict]) -> None:
     print(f"  {case}: floor_depth_m floor_area_m2 fuse K:L | found <=10 m | any dist | IoU det (model) "
           f"| |depth err| mm | <=1 cm | detections | false")
-    for ((dm, am), (k, la)), st in zip(configs, sts):
-        print(f"  {dm:13.4f} {am:13.4f} {f'{k}:{la}':>8s} | {100 * st['found_share']:10.1f} % | "
+    for ((dm, am), fu), st in zip(configs, sts):
+        print(f"  {dm:13.4f} {am:13.4f} {_fuse_label(fu):>8s} | {100 * st['found_share']:10.1f} % | "
               f"{100 * st['found_share_all_dist']:6.1f} % "
               f"| {st['iou_median_matched']:.2f} ({st['iou_model_median_matched']:.2f}) | "
               f"{st['depth_err_median_mm']:13.1f} | {100 * st['depth_err_le_1cm_share']:4.0f} % | "
               f"{st['detections']:10d} | {st['false_detections']:5d}")
+
+
+FUSE_OPTIONS = {"refit": {"refit_road": True}, "rows": {"row_bands": 6}}   # --fuse K:L:NAME -> fusion.FusionOptions
+
+
+def parse_fuse(text: str) -> tuple[tuple, ...] | None:
+    """``K[:L][:refit][:rows],...`` -> ((K, L, {run_sequence keywords}), ...); None when malformed."""
+    from roadtwin_stereo import FusionOptions
+
+    out = []
+    for item in text.split(","):
+        parts = item.split(":")
+        try:
+            k, la = int(parts[0]), int(parts[1]) if len(parts) > 1 else 0
+        except ValueError:
+            return None
+        if k < 1 or not 0 <= la < k or any(x not in FUSE_OPTIONS for x in parts[2:]):
+            return None
+        opts = {n: v for x in parts[2:] for n, v in FUSE_OPTIONS[x].items()}
+        out.append((k, la, {"fusion_options": FusionOptions(**opts)} if opts else {}))
+    return tuple(out)
+
+
+def _fuse_label(fu: tuple) -> str:
+    opt = fu[2].get("fusion_options")
+    names = [x for x, kw in FUSE_OPTIONS.items() if opt and all(getattr(opt, n) == v for n, v in kw.items())]
+    return ":".join([str(fu[0]), str(fu[1]), *names])
 
 
 def main() -> None:
@@ -213,9 +242,10 @@ def main() -> None:
                     help="the local road model is refitted without the regions reaching this many noise units "
                     "below and above the road (StereoDefectsParams road_refit_k; 0 = off, the detector before the "
                     "refit, bench/loop_missed.py)")
-    ap.add_argument("--fuse", default="1", help="K[:L]: detect each pair on the evidence of K pairs fused through the "
-                    "drive's poses, L of them after it (StereoDefects.run_sequence; 1 = each pair alone); comma list = "
-                    "a sweep")
+    ap.add_argument("--fuse", default="1", help="K[:L][:refit][:rows]: detect each pair on the evidence of K pairs "
+                    "fused through the drive's poses, L of them after it (StereoDefects.run_sequence; 1 = each pair "
+                    "alone); :refit = the local road model fitted again on the fused map, :rows = its noise measured "
+                    "in 6 bands of rows too (fusion.FusionOptions); comma list = a sweep")
     ap.add_argument("--no-surface", action="store_true", help="skip the LiDAR surface (stereo sweeps)")
     args = ap.parse_args()
     subpixel = tuple(float(x) for x in (args.subpixel + ",2").split(",")[:2])
@@ -223,12 +253,9 @@ def main() -> None:
     reject = None if np.isinf(reject).all() else reject
     floors = [tuple(float(x) for x in (f + ",0").split(",")[:2]) for f in args.floor] if args.floor else \
         [(default.floor_depth_m, default.floor_area_m2)]
-    try:
-        fuse = tuple(tuple(int(x) for x in (f + ":0").split(":")[:2]) for f in args.fuse.split(","))
-    except ValueError:
-        fuse = ((0, 0),)
-    if any(k < 1 or not 0 <= la < k for k, la in fuse):
-        ap.error(f"--fuse: K[:L] with K >= 1 and 0 <= L < K expected, got {args.fuse!r}")
+    fuse = parse_fuse(args.fuse)
+    if fuse is None:
+        ap.error(f"--fuse: K[:L][:refit][:rows] with K >= 1 and 0 <= L < K expected, got {args.fuse!r}")
     configs = [(fl, k) for fl in floors for k in fuse]
     args.out.mkdir(parents=True, exist_ok=True)
     report = {}
@@ -259,12 +286,13 @@ def main() -> None:
             "" if reject is None else f", reject {reject[0]:g}x err / {reject[1]:g}x residual")
         how += f", border {args.border_px} px" if args.border_px else ""
         how += f", k_region {args.k_region:g}, refit {args.refit_k:g}"
-        for ((dm, am), (k, la)), st in zip(configs, sts):
-            fused = f", {k} pairs fused ({la} after)" if k > 1 else ""
+        for ((dm, am), fu), st in zip(configs, sts):
+            fused = f", {fu[0]} pairs fused ({fu[1]} after; {_fuse_label(fu)})" if fu[0] > 1 else ""
             _print_stereo(st, f"{how}, floor {1000 * dm:g} mm, {am:g} m2{fused}")
         if len(configs) > 1:
             _print_sweep(case, configs, sts)
-        report[case] = {"surface": s, "stereo": [{"floor_depth_m": dm, "floor_area_m2": am, "fuse": list(fu),
+        report[case] = {"surface": s, "stereo": [{"floor_depth_m": dm, "floor_area_m2": am, "fuse": list(fu[:2]),
+                                                   "fuse_options": _fuse_label(fu).split(":")[2:],
                                                    **{n: v for n, v in st.items() if n != "rows"}}
                                                   for ((dm, am), fu), st in zip(configs, sts)],
                         "observations": sts[0]["rows"]}

@@ -17,17 +17,22 @@ truth and the detector's own intermediate maps say:
   the detector's local road model: ``dip_meas - dip_model`` is what the road model absorbed);
   each smoothed as the detector smooths its residual (blur_px), so the three compare,
   ``peak`` (the detector's z there, -10th percentile, in noise units; ``reg_peak``: the same over
-  the candidate region on it, which step 5 compares with k_seed), ``sigma`` (the frame's noise
-  unit, px);
+  the candidate region on it, which step 5 compares with k_seed; ``reg_sig``: that region's mean
+  depth over the noise of such a mean, which step 5c compares with k_region), ``sigma`` (the
+  frame's noise unit, px; fused: the median over the pothole of the fused map's per-pixel unit);
 - ``stage``: the share of its pixels each stage of segment.py covers: candidates (z < -k_grow,
   opened), regions past k_seed or k_region (no floor, no border; k_region is judged with the
   floor's metric maps), + the floor, + the border rule (= the detector's output); ``cause``: the first stage that loses it (``none``: found);
 - ``exact``: whether the same detector finds it on the renderer's exact disparity (matcher or
-  detector?).
+  detector?), ``x_peak`` its peak there;
+- with ``--fuse K[:L]`` every map above is the pair's maps fused with K - 1 other pairs' (L after
+  it) as StereoDefects.run_sequence fuses them (fusion.py; the exact disparity's fused the same
+  way), and two more columns: ``peak1`` (the pair's own peak, before fusion) and ``pairs`` (pairs
+  that saw the pothole, median over its pixels).
 
     PYTHONPATH=.:plugins .venv/bin/python bench/loop_missed.py [--out out/loop_tune]
         [--cases tune_highway_D_seed23] [--tag lk6x2_reject1.3x2] [--border-px 3] [--k-region K] [--refit-k K]
-        [--all]
+        [--fuse K[:L]] [--refit-road] [--row-bands N] [--all] [--json FILE]
 """
 from __future__ import annotations
 
@@ -50,18 +55,33 @@ BLUR_PX = 2.0  # SegmentParams.blur_px
 STAGES = ("candidate", "seed", "floor", "border")
 
 
-def detector_maps(disp: np.ndarray, mask: np.ndarray, K: np.ndarray, baseline: float, p) -> dict:
-    """The reconstructor's steps (roadtwin_stereo/__init__.py ``run``), keeping what they see:
-    z (noise units), sigma (px), the road disparity, and the labels at every stage."""
-    from roadtwin_stereo.road_model import metric_road_depth
-    from roadtwin_stereo.segment import SegmentParams, road_residual, segment_residual
+def road_maps(disp: np.ndarray, mask: np.ndarray, p) -> dict:
+    """The reconstructor's residual (roadtwin_stereo/__init__.py ``_residual``): z (noise units),
+    valid, sigma (px), the masked raw disparity ``d``."""
+    from roadtwin_stereo.segment import road_residual
     from roadtwin_stereo.transform import transform_disparity
 
     d = np.where(mask > 0, disp, np.nan)
-    seg = SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, k_region=p.k_region, min_depth_m=p.floor_depth_m,
-                        min_area_m2=p.floor_area_m2, border_px=p.border_px, refit_k=p.road_refit_k)
     dt, _ = transform_disparity(d)
-    z, valid, sigma = road_residual(dt, seg, with_sigma=True)
+    z, valid, sigma = road_residual(dt, _seg(p), with_sigma=True)
+    return {"z": z, "valid": valid, "sigma": sigma, "d": d}
+
+
+def _seg(p):
+    from roadtwin_stereo.segment import SegmentParams
+
+    return SegmentParams(k_grow=p.k_grow, k_seed=p.k_seed, k_region=p.k_region, min_depth_m=p.floor_depth_m,
+                         min_area_m2=p.floor_area_m2, border_px=p.border_px, refit_k=p.road_refit_k)
+
+
+def detector_maps(r: dict, K: np.ndarray, baseline: float, p) -> dict:
+    """The reconstructor's detection (``_detect``) on a residual ``r`` (:func:`road_maps`, or
+    the fused one of :func:`fused_maps`: ``sigma`` per pixel), keeping what it sees: z, sigma,
+    the road disparity, and the labels at every stage."""
+    from roadtwin_stereo.road_model import metric_road_depth
+    from roadtwin_stereo.segment import segment_residual
+
+    z, valid, sigma, d, seg = r["z"], r["valid"], r["sigma"], r["d"], _seg(p)
     metric = metric_road_depth(z * sigma, d, valid & (z > -seg.k_grow), K, baseline)
     low = segment_residual(z, valid, replace(seg, k_seed=0.0, k_region=0.0, min_depth_m=0, min_area_m2=0,
                                              border_px=0, close_px=0, depth_frac=0))
@@ -69,7 +89,17 @@ def detector_maps(disp: np.ndarray, mask: np.ndarray, K: np.ndarray, baseline: f
               "seed": segment_residual(z, valid, replace(seg, min_depth_m=0, min_area_m2=0, border_px=0), metric),
               "floor": segment_residual(z, valid, replace(seg, border_px=0), metric),
               "border": segment_residual(z, valid, seg, metric)}
-    return {"z": z, "sigma": sigma, "valid": valid, "road_px": d - z * sigma, "stages": stages}
+    return {**r, "road_px": d - z * sigma, "stages": stages}
+
+
+def fused_maps(r: dict, ev, others: list, p, options=None) -> dict:
+    """The residual ``r`` of one pair (evidence ``ev``) fused with ``others``' evidence as
+    StereoDefects.run_sequence fuses it (fusion.fused_residual), plus ``pairs``: pairs per pixel,
+    and ``z1``: the pair's own z."""
+    from roadtwin_stereo.fusion import FrameFusion, fused_residual
+
+    z, valid, scale, count = fused_residual(FrameFusion(others), ev, r["z"], r["valid"], r["sigma"], _seg(p), options)
+    return {**r, "z": z, "valid": valid, "sigma": scale, "pairs": count, "z1": r["z"]}
 
 
 def ring_plane(d_true: np.ndarray, px: np.ndarray, others: np.ndarray) -> np.ndarray:
@@ -100,12 +130,17 @@ def _dip(x: np.ndarray) -> float:
     return float(np.percentile(x, 90)) if len(x) else float("nan")
 
 
-def _region_peak(z: np.ndarray, cand: np.ndarray, px: np.ndarray) -> float:
-    """Step 5's peak (-10th percentile of z) of the candidate region covering most of ``px``."""
+def _region_peak(z: np.ndarray, valid: np.ndarray, cand: np.ndarray, px: np.ndarray) -> tuple[float, float]:
+    """Step 5's peak (-10th percentile of z) and step 5c's significance (its mean depth over the
+    noise of such a mean, compared with k_region) of the candidate region covering most of ``px``."""
+    from roadtwin_stereo.road_model import region_significance
+
     labs, n = np.unique(cand[px & (cand > 0)], return_counts=True)
     if not len(labs):
-        return float("nan")
-    return float(-np.percentile(z[cand == labs[np.argmax(n)]], 10))
+        return float("nan"), float("nan")
+    reg = cand == labs[np.argmax(n)]
+    lab = reg.astype(np.int32)
+    return float(-np.percentile(z[reg], 10)), float(region_significance(z, lab, 2, valid & (np.abs(z) < 3.0))[1])
 
 
 def _grey(img: np.ndarray) -> np.ndarray:
@@ -154,6 +189,13 @@ def view_rows(fr: dict, maps: dict, exact: dict, instances: dict, truth, classes
         under_true = _smooth(true_road - fr["disp"], maps["valid"], BLUR_PX)  # as the detector smooths its residual
         exact_dip = _smooth(true_road - d_true, np.isfinite(d_true), BLUR_PX)
         zpx = maps["z"][px][maps["valid"][px]]
+        reg_peak, reg_sig = _region_peak(maps["z"], maps["valid"], maps["stages"]["candidate"], px)
+        sigma = maps["sigma"] if np.ndim(maps["sigma"]) == 0 else np.nanmedian(maps["sigma"][px & maps["valid"]])
+        fused = {}
+        if "z1" in maps:   # fused: the pair's own peak and how many pairs saw the pothole
+            z1 = maps["z1"][px][maps["valid"][px]]
+            fused = {"peak1": float(-np.percentile(z1, 10)) if len(z1) else np.nan,
+                     "pairs": float(np.median(maps["pairs"][px]))}
         rows.append({
             "frame": fr["k"], "defect": did, "dist": dist, "area": float(truth.footprints[did].area),
             "depth": 1000 * d["depth_m"], "px": int(px.sum()), "valid": float(maps["valid"][px].mean()),
@@ -162,7 +204,7 @@ def view_rows(fr: dict, maps: dict, exact: dict, instances: dict, truth, classes
             "dip_true": _dip(exact_dip[px]), "dip_meas": _dip(np.where(maps["valid"], under_true, np.nan)[px]),
             "dip_model": _dip(np.where(maps["valid"], -maps["z"] * maps["sigma"], np.nan)[px]),
             "peak": float(-np.percentile(zpx, 10)) if len(zpx) else np.nan,
-            "reg_peak": _region_peak(maps["z"], maps["stages"]["candidate"], px), "sigma": float(maps["sigma"]),
+            "reg_peak": reg_peak, "reg_sig": reg_sig, "sigma": float(sigma), **fused,
             **{f"cov_{s}": c for s, c in cover.items()}, "cause": cause,
             "exact": bool((exact["stages"]["border"][px] > 0).mean() >= 0.5),
             "exact_peak": float(-np.percentile(exact["z"][px][exact["valid"][px]], 10))
@@ -170,7 +212,25 @@ def view_rows(fr: dict, maps: dict, exact: dict, instances: dict, truth, classes
     return rows
 
 
-def case_rows(out: Path, case: str, tag: str, params) -> list[dict]:
+def _frames(out: Path, case: str, maps, truth, classes: list[str]):
+    """Per frame: the cropped frame, its kept map as ``disp`` and the renderer's depth as a
+    disparity, ``exact_disp``."""
+    for k, fr in enumerate(Bag(out / case / "drive").stereo_frames()):
+        fr = _crop(fr, road_rows(fr, truth, ROI_M))
+        fr["k"] = k
+        fr["disp"] = maps[f"f{k:03d}"].astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            fr["exact_disp"] = np.where(fr["depth"] > 0, fr["K"][0, 0] * fr["baseline"] / fr["depth"], np.nan)
+        yield fr
+
+
+def case_rows(out: Path, case: str, tag: str, params, fuse: tuple[int, int] = (1, 0),
+              options=None) -> list[dict]:
+    """The rows of one case; ``fuse`` = (K, L): each pair's maps fused as StereoDefects.run_sequence
+    fuses them (fusion.py; the exact disparity's maps fused the same way), with ``options``
+    (fusion.FusionOptions)."""
+    from roadtwin_stereo.fusion import fused_sequence, pair_evidence
+
     cache = out / case / f"disparity_1280x720_{tag}.npz"
     if not cache.exists():
         print(f"{cache}: no kept disparity maps (run bench/loop.py --reuse first)", file=sys.stderr)
@@ -178,18 +238,25 @@ def case_rows(out: Path, case: str, tag: str, params) -> list[dict]:
     summary = json.loads((out / case / "drive" / "summary.json").read_text())
     classes, truth = summary["classes"], load_truth(out / case / "town" / "town.usda")
     maps, rows = np.load(cache), []
-    for k, fr in enumerate(Bag(out / case / "drive").stereo_frames()):
-        fr = _crop(fr, road_rows(fr, truth, ROI_M))
-        fr["k"] = k
-        fr["disp"] = maps[f"f{k:03d}"].astype(np.float64)
+
+    def prepare(fr):
         mask = road_mask(fr["semantic"], classes)
-        disp = fr["disp"]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            exact_disp = np.where(fr["depth"] > 0, fr["K"][0, 0] * fr["baseline"] / fr["depth"], np.nan)
-        m = detector_maps(disp, mask, fr["K"], fr["baseline"], params)
-        e = detector_maps(exact_disp, mask, fr["K"], fr["baseline"], params)
-        rows += [{"case": case, **r} for r in view_rows(fr, m, e, summary["instances"], truth, classes)]
-        print(f"  {case} frame {k:03d}", file=sys.stderr, flush=True)
+        res = [road_maps(fr[n], mask, params) for n in ("disp", "exact_disp")]
+        evs = [pair_evidence(r["z"], r["valid"], r["sigma"], r["d"], fr["K"], fr["baseline"], fr["cam_to_world"],
+                             params.k_grow, _seg(params).blur_px) if fuse[0] > 1 else None for r in res]
+        return (fr, res, evs), evs
+
+    def detect(state, evs, others):
+        fr, res, _ = state
+        if fuse[0] > 1:
+            res = [fused_maps(r, ev, [o[j] for o in others], params, options)
+                   for j, (r, ev) in enumerate(zip(res, evs))]
+        m, e = (detector_maps(r, fr["K"], fr["baseline"], params) for r in res)
+        print(f"  {case} frame {fr['k']:03d}", file=sys.stderr, flush=True)
+        return [{"case": case, **r} for r in view_rows(fr, m, e, summary["instances"], truth, classes)]
+
+    for got in fused_sequence(_frames(out, case, maps, truth, classes), prepare, detect, *fuse):
+        rows += got
     return rows
 
 
@@ -202,10 +269,15 @@ def absorbed(rows: list[dict]) -> float:
 
 def print_table(rows: list[dict], show_all: bool) -> None:
     cols = ("frame", "defect", "dist", "area", "depth", "px", "valid", "merged", "lum", "tex", "dip_true", "dip_meas",
-            "dip_model", "peak", "reg_peak", "sigma", "cov_candidate", "cov_seed", "cov_floor", "cov_border", "cause", "exact")
-    head = {"cov_candidate": "c_cand", "cov_seed": "c_seed", "cov_floor": "c_flr", "cov_border": "c_out"}
+            "dip_model", "peak", "reg_peak", "reg_sig", "sigma", "cov_candidate", "cov_seed", "cov_floor", "cov_border",
+            "cause", "exact", "exact_peak")
+    cols += ("peak1", "pairs") if rows and "peak1" in rows[0] else ()
+    head = {"cov_candidate": "c_cand", "cov_seed": "c_seed", "cov_floor": "c_flr", "cov_border": "c_out",
+            "exact_peak": "x_peak"}
     fmt = {"dist": "{:.1f}", "area": "{:.3f}", "depth": "{:.0f}", "valid": "{:.2f}", "lum": "{:.2f}", "tex": "{:.2f}",
-           "dip_true": "{:.2f}", "dip_meas": "{:.2f}", "dip_model": "{:.2f}", "peak": "{:.1f}", "reg_peak": "{:.1f}", "sigma": "{:.3f}"}
+           "dip_true": "{:.2f}", "dip_meas": "{:.2f}", "dip_model": "{:.2f}", "peak": "{:.1f}", "reg_peak": "{:.1f}",
+           "sigma": "{:.3f}",
+           "reg_sig": "{:.1f}", "exact_peak": "{:.1f}", "peak1": "{:.1f}", "pairs": "{:.0f}"}
     shown = [r for r in rows if show_all or r["cause"] != "none"]
     print(" ".join(f"{head.get(c, c)[:7]:>7s}" for c in cols))
     for r in sorted(shown, key=lambda r: (r["case"], r["dist"])):
@@ -233,16 +305,29 @@ def print_table(rows: list[dict], show_all: bool) -> None:
 
 
 def main() -> None:
-    from roadtwin_stereo import StereoDefects
+    from roadtwin_stereo import FusionOptions, StereoDefects
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     add_kept_map_args(ap, ROOT, "tune_highway_D_seed23", border_px=3)     # bench/loop.py's border
     ap.add_argument("--all", action="store_true", help="list found views too")
     ap.add_argument("--json", type=Path, help="write the rows here")
+    ap.add_argument("--fuse", default="1", help="K[:L]: each pair's maps fused with K - 1 others, L of them after it, "
+                    "as StereoDefects.run_sequence fuses them (bench/loop.py --fuse; 1 = each pair alone)")
+    ap.add_argument("--refit-road", action="store_true", help="with --fuse: the local road model fitted again on the "
+                    "fused map (fusion.FusionOptions.refit_road)")
+    ap.add_argument("--row-bands", type=int, default=1, help="with --fuse: the fused map's noise measured in this many "
+                    "bands of rows too (fusion.FusionOptions.row_bands; 1 = by predicted gain only)")
     args = ap.parse_args()
+    try:
+        fuse = tuple(int(x) for x in (args.fuse + ":0").split(":")[:2])
+    except ValueError:
+        fuse = (0, 0)
+    if fuse[0] < 1 or not 0 <= fuse[1] < fuse[0]:
+        ap.error(f"--fuse: K[:L] with K >= 1 and 0 <= L < K expected, got {args.fuse!r}")
     params = StereoDefects.Params(texture=False, border_px=args.border_px, k_region=args.k_region,
                                   road_refit_k=args.refit_k)
-    rows = [r for case in args.cases.split(",") for r in case_rows(args.out, case, args.tag, params)]
+    options = FusionOptions(refit_road=args.refit_road, row_bands=args.row_bands)
+    rows = [r for case in args.cases.split(",") for r in case_rows(args.out, case, args.tag, params, fuse, options)]
     print_table(rows, args.all)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1, default=float))

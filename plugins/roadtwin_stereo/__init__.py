@@ -46,7 +46,7 @@ from roadtwin_core import DefectLook, DefectModel, RoadtwinError, check_params, 
 from roadtwin_core.atomic import atomic_output_dir
 from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
-from .fusion import FrameFusion, PairEvidence, fused_sequence, noise_units, pair_evidence
+from .fusion import FrameFusion, FusionOptions, PairEvidence, fused_residual, fused_sequence, pair_evidence
 from .mesh import DefectInstance, reconstruct_instance
 from .road_model import metric_road_depth
 from .segment import (SegmentParams, f1_score, load_disparity, load_label, road_residual, segment_defects,
@@ -55,7 +55,8 @@ from .subpixel import refine_disparity
 from .texture import TextureSource, check_depth_scale, make_patch, source_text, texture_source
 from .transform import RoadDisparityModel, fit_road_disparity, sgbm_disparity, transform_disparity
 
-__all__ = ["StereoDefects", "StereoResult", "DefectInstance", "FrameFusion", "PairEvidence", "SegmentParams",
+__all__ = ["StereoDefects", "StereoResult", "DefectInstance", "FrameFusion", "FusionOptions", "PairEvidence",
+           "SegmentParams",
            "RoadDisparityModel",
            "f1_score", "fit_road_disparity", "load_disparity", "load_label", "reconstruct_instance",
            "refine_disparity", "segment_defects", "sgbm_disparity", "transform_disparity"]
@@ -291,13 +292,14 @@ class StereoDefects:
         return self._detect(inputs, p, r, fusion, ev)
 
     def _detect(self, inputs: dict[str, Any], p: StereoDefectsParams, r: SimpleNamespace,
-                fusion: FrameFusion | None = None, ev: PairEvidence | None = None) -> StereoResult:
+                fusion: FrameFusion | None = None, ev: PairEvidence | None = None,
+                fusion_options: FusionOptions | None = None) -> StereoResult:
         """Detection and meshing on a residual (:meth:`_residual`), fused with ``fusion``'s pairs
         onto this pair's evidence ``ev`` when given."""
         transformed_in, disp, K, baseline, source, seg = r.transformed, r.disp, r.K, r.baseline, r.source, r.seg
         dt, road, depth_scale, z, valid_z, sigma = r.dt, r.road, r.depth_scale, r.z, r.valid, r.sigma
         if fusion is not None and not transformed_in:
-            z, valid_z, sigma = self._fused(fusion, r, ev)
+            z, valid_z, sigma, _ = fused_residual(fusion, ev, r.z, r.valid, r.sigma, r.seg, fusion_options)
         metric = None
         if not transformed_in and (p.floor_depth_m > 0 or p.floor_area_m2 > 0):  # units: px of a raw disparity
             metric = metric_road_depth(z * sigma, disp, valid_z & (z > -p.k_grow), K, float(baseline))
@@ -323,13 +325,14 @@ class StereoDefects:
         return StereoResult(models, labels, dt, road, instances, self._texture(inputs, K, disp.shape, p, models))
 
     def run_sequence(self, frames, params: StereoDefectsParams | None = None, fuse_frames: int = 1,
-                     lookahead: int = 0):
+                     lookahead: int = 0, fusion_options: FusionOptions | None = None):
         """Per pair of a drive, in order (each as :meth:`run`'s inputs plus ``cam_to_world``, the
         left camera's 4 x 4 pose, OpenCV axes), its result, detected on the evidence of
         ``fuse_frames`` pairs fused on it: the pair, the ``lookahead`` pairs after it and the rest
         before it (fusion.py). 1 (default) = each pair alone, as :meth:`run`. Why: one pair's
         matcher noise hides shallow far potholes that several pairs see; the later pairs see
-        them nearer (a pair's result then comes ``lookahead`` pairs late)."""
+        them nearer (a pair's result then comes ``lookahead`` pairs late). ``fusion_options``:
+        fusion.FusionOptions (default: none; docs/stereo_detector.md, "Multi-pair fusion")."""
         if not (isinstance(fuse_frames, (int, np.integer)) and fuse_frames >= 1):
             raise RoadtwinError(f"{self.name}: fuse_frames must be an integer >= 1, got {fuse_frames!r}")
         if not (isinstance(lookahead, (int, np.integer)) and 0 <= lookahead < fuse_frames):
@@ -345,7 +348,7 @@ class StereoDefects:
 
         def detect(state, ev, others):
             inputs, r = state
-            return self._detect(inputs, p, r, FrameFusion(others), ev)
+            return self._detect(inputs, p, r, FrameFusion(others), ev, fusion_options)
 
         yield from fused_sequence(frames, prepare, detect, int(fuse_frames), int(lookahead))
 
@@ -363,18 +366,6 @@ class StereoDefects:
 
     def _evidence(self, inputs: dict[str, Any], r: SimpleNamespace, p: StereoDefectsParams) -> PairEvidence | None:
         return pair_evidence(r.z, r.valid, r.sigma, r.disp, r.K, float(r.baseline), _pose(inputs, self.name), p.k_grow)
-
-    def _fused(self, fusion: FrameFusion, r: SimpleNamespace, ev: PairEvidence | None):
-        """(z, valid, sigma per pixel: ``z * sigma`` in px of this pair) of the pair (evidence
-        ``ev``) fused with ``fusion``'s other pairs (fusion.py), in the fused map's own measured noise units."""
-        residual, gain, _ = fusion.fuse(ev, r.valid)
-        if residual is None:
-            return r.z, r.valid, r.sigma
-        valid = np.isfinite(residual)
-        z = noise_units(residual, gain)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            scale = np.where(valid & (np.abs(z) > 1e-9), residual / z, r.sigma)
-        return z, valid, scale
 
     def reconstruct(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> list[DefectModel]:
         """The models, untextured: a look needs texture files, which :meth:`write` makes."""

@@ -17,7 +17,11 @@ How (docs/stereo_detector.md, "Multi-pair fusion"):
 3. inverse-variance mean of ``D``, back in the current pair's disparity px;
 4. in units of its own noise, *measured* per pixel class (:func:`noise_units`): the road's own
    roughness is the same in every pair and does not average out, and pixels far ahead are seen
-   by fewer pairs (the others' crop ends), so a predicted sqrt(K) would overstate the gain.
+   by fewer pairs (the others' crop ends), so a predicted sqrt(K) would overstate the gain
+   (:class:`FusionOptions` ``row_bands``: the classes also by image row, i.e. by range);
+5. (:class:`FusionOptions` ``refit_road``; off by default) the local road model fitted again on
+   the fused depth below each pair's road plane: each pair's own model absorbs part of a
+   pothole its noise hides, and fusing absorbed evidence keeps it absorbed.
 
 The detector's steps 4-8 (segment.py) then run on the fused map, so the pair gets the
 detections. Poses are camera-to-world 4 x 4 (OpenCV axes: X right, Y down, Z forward).
@@ -29,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .road_model import robust_sigma, smooth_valid
+from .road_model import deep_regions, local_road_residual, robust_sigma, row_levels, smooth_valid
 
 ROAD_BLUR_PX = 4.0  # smoothing of the road disparity that places a pixel on the road (its noise, not its shape)
 
@@ -38,7 +42,9 @@ ROAD_BLUR_PX = 4.0  # smoothing of the road disparity that places a pixel on the
 class PairEvidence:
     """One pair's evidence: ``depth_m`` below its local road (NaN = invalid), ``noise_m`` (its
     standard deviation), ``m_per_px`` (metres below the road per px of disparity residual),
-    ``road_disp`` (road disparity, px, every pixel), calibration and pose."""
+    ``road_disp`` (road disparity, px, every pixel), calibration and pose; ``plane_depth_m``: the
+    depth below the pair's road *plane* and its rows' levels instead (smoothed as ``depth_m``; what
+    its local road model's tiles absorbed is still in it), for :func:`fused_residual`'s ``refit_road``."""
 
     depth_m: np.ndarray
     noise_m: np.ndarray
@@ -47,6 +53,7 @@ class PairEvidence:
     K: np.ndarray
     baseline: float
     cam_to_world: np.ndarray
+    plane_depth_m: np.ndarray | None = None
 
 
 def _road_plane(road_disp: np.ndarray, ok: np.ndarray, K: np.ndarray, baseline: float) -> tuple[np.ndarray, float]:
@@ -63,9 +70,11 @@ def _road_plane(road_disp: np.ndarray, ok: np.ndarray, K: np.ndarray, baseline: 
 
 
 def pair_evidence(z: np.ndarray, valid: np.ndarray, sigma: float, disp: np.ndarray, K: np.ndarray,
-                  baseline: float, cam_to_world: np.ndarray, k_grow: float = 3.0) -> PairEvidence | None:
+                  baseline: float, cam_to_world: np.ndarray, k_grow: float = 3.0,
+                  blur_px: float = 2.0) -> PairEvidence | None:
     """Step 1 for one pair from segment.road_residual's ``z``, ``valid``, ``sigma`` (px of
-    ``disp``, the raw disparity). None when too little road."""
+    ``disp``, the raw disparity). None when too little road. ``blur_px``: the detector's
+    smoothing (SegmentParams.blur_px), applied to ``plane_depth_m`` as it was to ``z``."""
     d = np.asarray(disp, np.float64)
     road_px = np.where(valid & np.isfinite(d), d - z * sigma, np.nan)
     ok = np.isfinite(road_px) & (z > -k_grow)
@@ -76,12 +85,17 @@ def pair_evidence(z: np.ndarray, valid: np.ndarray, sigma: float, disp: np.ndarr
     with np.errstate(invalid="ignore", divide="ignore"):
         m_per_px = np.where(road_disp > 0, height / road_disp, np.nan)
     depth = np.where(valid, -z * sigma * m_per_px, np.nan)
+    off_plane = np.where(valid & np.isfinite(d), d - plane, 0.0)
+    off_plane -= row_levels(off_plane, ok)[:, None]   # what is constant along a row is road (road_model.py step 2)
+    below_plane = -smooth_valid(off_plane, valid & np.isfinite(d), blur_px)
+    plane_depth = np.where(valid, below_plane * m_per_px, np.nan)
     return PairEvidence(depth.astype(np.float32), (sigma * m_per_px).astype(np.float32), m_per_px, road_disp,
-                        np.asarray(K, np.float64), float(baseline), np.asarray(cam_to_world, np.float64))
+                        np.asarray(K, np.float64), float(baseline), np.asarray(cam_to_world, np.float64),
+                        plane_depth.astype(np.float32))
 
 
-def _lookup(cur: PairEvidence, other: PairEvidence) -> tuple[np.ndarray, np.ndarray]:
-    """Step 2: ``other``'s depth and noise at the road point of every pixel of ``cur``."""
+def _lookup(cur: PairEvidence, other: PairEvidence, fields=("depth_m", "noise_m")) -> list[np.ndarray]:
+    """Step 2: ``other``'s ``fields`` (default: depth and noise) at the road point of every pixel of ``cur``."""
     import cv2
 
     h, w = cur.road_disp.shape
@@ -108,7 +122,7 @@ def _lookup(cur: PairEvidence, other: PairEvidence) -> tuple[np.ndarray, np.ndar
     def get(a: np.ndarray) -> np.ndarray:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(seen, warp(np.where(ok, a, 0.0).astype(np.float32)) / weight, np.nan)
-    return get(other.depth_m), get(other.noise_m)
+    return [get(getattr(other, f)) for f in fields]
 
 
 class FrameFusion:
@@ -117,15 +131,17 @@ class FrameFusion:
     def __init__(self, others=()) -> None:
         self.others = [e for e in others if e is not None]
 
-    def fuse(self, ev: PairEvidence | None, valid: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+    def fuse(self, ev: PairEvidence | None, valid: np.ndarray, field: str = "depth_m"
+             ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
         """Steps 2-3: (the fused depth below the road as a residual in ``ev``'s disparity px, NaN
         off ``valid``, None without evidence; its predicted noise over ``ev``'s alone, <= 1;
-        pairs per pixel)."""
-        if ev is None:
+        pairs per pixel). ``field``: which depth (``"plane_depth_m"``: below each pair's plane)."""
+        if ev is None or getattr(ev, field) is None:
             return None, np.ones(valid.shape), valid.astype(np.int32)
         num, den = np.zeros(valid.shape), np.zeros(valid.shape)
         count = np.zeros(valid.shape, np.int32)
-        for dj, nj in [(ev.depth_m, ev.noise_m)] + [_lookup(ev, o) for o in self.others]:
+        for dj, nj in [(getattr(ev, field), ev.noise_m)] + [_lookup(ev, o, (field, "noise_m")) for o in self.others
+                                                            if getattr(o, field) is not None]:
             ok = np.isfinite(dj) & np.isfinite(nj) & (nj > 0)
             num[ok] += dj[ok] / nj[ok] ** 2
             den[ok] += 1.0 / nj[ok] ** 2
@@ -137,14 +153,19 @@ class FrameFusion:
         return residual, np.clip(gain, 1e-3, 1.0), count
 
 
-def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8) -> np.ndarray:
-    """Step 4: ``residual`` (NaN = invalid) in units of its own noise, measured per class of
-    pixels: 1.4826 MAD over each ``gain`` quantile, interpolated in ``gain`` (median = road level)."""
-    ok = np.isfinite(residual)
-    out = np.zeros(residual.shape)
-    if ok.sum() < 100:
-        return out
-    r, g = residual[ok], gain[ok]
+@dataclass(frozen=True)
+class FusionOptions:
+    """Choices of the fused map (StereoDefects.run_sequence; the defaults, both off, are the fusion
+    as chosen on bench/loop.py's tuning cases, docs/stereo_detector.md): ``refit_road``: step 5, the local
+    road model fitted again on the fused map; ``row_bands``: step 4's noise classes also by image
+    row, in this many bands of equal pixel count (1: by predicted gain only)."""
+
+    refit_road: bool = False
+    row_bands: int = 1
+
+
+def _gain_spread(r: np.ndarray, g: np.ndarray, bins: int, at: np.ndarray) -> np.ndarray:
+    """1.4826 MAD of ``r`` over each ``g`` quantile, interpolated in ``g`` at ``at``."""
     edges = np.unique(np.quantile(g, np.linspace(0, 1, bins + 1)))
     idx = np.clip(np.searchsorted(edges, g, side="right") - 1, 0, max(0, len(edges) - 2))
     centre, spread = [], []
@@ -152,9 +173,82 @@ def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8) -> np.nda
         if (idx == b).sum() >= 50:
             centre.append(float(np.median(g[idx == b])))
             spread.append(robust_sigma(r[idx == b]))
+    return np.interp(at, centre, spread) if centre else np.full(at.shape, robust_sigma(r))
+
+
+def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8, row_bands: int = 1) -> np.ndarray:
+    """Step 4: ``residual`` (NaN = invalid) in units of its own noise, measured per class of
+    pixels: 1.4826 MAD over each ``gain`` quantile, interpolated in ``gain`` (median = road level).
+    ``row_bands`` > 1: measured so within each band of rows (equal pixel counts), interpolated
+    linearly between the bands' median rows: a pixel's noise also changes with its range (on the
+    loop's tuning highway the fused map's z spread 1.5-2.5 in the farthest sixth of the rows and
+    0.8-0.95 in the nearest half; docs/stereo_detector.md), which the predicted gain does not capture."""
+    ok = np.isfinite(residual)
+    out = np.zeros(residual.shape)
+    if ok.sum() < 100:
+        return out
+    r, g = residual[ok], gain[ok]
     level = float(np.median(r))
-    out[ok] = (r - level) / (np.interp(g, centre, spread) if centre else robust_sigma(r))
+    rows = np.nonzero(ok)[0].astype(np.float64)
+    edges = np.unique(np.quantile(rows, np.linspace(0, 1, max(1, row_bands) + 1)))
+    band = np.clip(np.searchsorted(edges, rows, side="right") - 1, 0, max(0, len(edges) - 2))
+    centres, spreads = [], []
+    for b in range(max(1, len(edges) - 1)):
+        sel = band == b
+        if sel.sum() >= 50 * bins:
+            centres.append(float(np.median(rows[sel])))
+            spreads.append(_gain_spread(r[sel], g[sel], bins, g))
+    if len(centres) < 2:
+        spread = _gain_spread(r, g, bins, g)
+    else:
+        t = np.interp(rows, centres, np.arange(len(centres), dtype=np.float64))
+        i0 = np.minimum(np.floor(t).astype(int), len(centres) - 2)
+        f = t - i0
+        stack = np.stack(spreads)
+        cols = np.arange(len(r))
+        spread = stack[i0, cols] * (1 - f) + stack[i0 + 1, cols] * f
+    out[ok] = (r - level) / np.maximum(spread, 1e-12)
     return out
+
+
+def fused_residual(fusion: FrameFusion, ev: PairEvidence | None, z: np.ndarray, valid: np.ndarray, sigma,
+                   seg=None, options: FusionOptions | None = None):
+    """(z, valid, scale, pairs per pixel) of one pair (its residual ``z`` in units of ``sigma``
+    px, its evidence ``ev``) fused with ``fusion``'s pairs: steps 2-4 (and 5), ``z * scale`` in px
+    of the pair. Without evidence the pair's own. ``seg``: the detector's segment.SegmentParams
+    (step 5's road model); ``options``: :class:`FusionOptions` (default: none of them)."""
+    opt = options or FusionOptions()
+    residual, gain, count = fusion.fuse(ev, valid)
+    if residual is None:
+        return z, valid, sigma, count
+    valid = np.isfinite(residual)
+    zf = noise_units(residual, gain, row_bands=opt.row_bands)
+    if opt.refit_road:
+        residual, valid, zf = _refit_road(fusion, ev, residual, valid, zf, gain, seg, opt.row_bands)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(valid & (np.abs(zf) > 1e-9), residual / zf, sigma)
+    return zf, valid, scale, count
+
+
+def _refit_road(fusion: FrameFusion, ev: PairEvidence, residual: np.ndarray, valid: np.ndarray, zf: np.ndarray,
+                gain: np.ndarray, seg, row_bands: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 5 (residual px, valid, z): each pair's local road model absorbs part of a shallow
+    pothole it cannot mask (under its own noise, the pothole never reaches ``mask_k`` or
+    ``refit_k``), and fusing absorbed evidence keeps it absorbed. So the depth below each pair's
+    road *plane* is fused, and the local road model (road_model.py, the detector's settings
+    ``seg``) is fitted on that fused map, masking what the fused map's lower noise shows: the
+    regions of step 4's ``zf`` reaching ``mask_k``, then its own rounds and refit."""
+    if seg is None:
+        raise ValueError("refit_road needs the detector's SegmentParams (seg)")
+    raw, _, _ = fusion.fuse(ev, valid, "plane_depth_m")
+    if raw is None:
+        return residual, valid, zf
+    ok = valid & np.isfinite(raw)
+    z, _, s = local_road_residual(np.where(ok, raw, 0.0), ok, deep_regions(zf, ok, seg.k_grow, seg.mask_k),
+                                  k_grow=seg.k_grow, k_peak=seg.mask_k, tile_frac=seg.tile_frac, blur_px=0.0,
+                                  iters=seg.model_iters, refit_k=seg.refit_k, open_px=seg.open_px)
+    residual = np.where(ok, z * s, np.nan)
+    return residual, ok, noise_units(residual, gain, row_bands=row_bands)
 
 
 def fused_sequence(frames, prepare, detect, fuse_frames: int, lookahead: int):
