@@ -182,7 +182,7 @@ def _print_sweep(case: str, configs: list, sts: list[dict]) -> None:
               f"{st['detections']:10d} | {st['false_detections']:5d}")
 
 
-FUSE_OPTIONS = {"refit": {"refit_road": True}, "rows": {"row_bands": 6}}   # --fuse K:L:NAME -> fusion.FusionOptions
+FUSE_OPTIONS = {"refit": {"refit_road": True}, "rows": {"row_bands": 6}, "excl": {"exclude_k": 4.0}}   # --fuse K:L:NAME -> fusion.FusionOptions
 
 
 def parse_fuse(text: str) -> tuple[tuple, ...] | None:

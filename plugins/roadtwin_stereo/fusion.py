@@ -32,6 +32,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 
 from .road_model import deep_regions, local_road_residual, robust_sigma, row_levels, smooth_valid
 
@@ -158,10 +159,13 @@ class FusionOptions:
     """Choices of the fused map (StereoDefects.run_sequence; the defaults, both off, are the fusion
     as chosen on bench/loop.py's tuning cases, docs/stereo_detector.md): ``refit_road``: step 5, the local
     road model fitted again on the fused map; ``row_bands``: step 4's noise classes also by image
-    row, in this many bands of equal pixel count (1: by predicted gain only)."""
+    row, in this many bands of equal pixel count (1: by predicted gain only); ``exclude_k``: step 4
+    measured again without the pixels its first pass put this many units or more from the road
+    (grown 5 px), so a large pothole does not widen its own noise class (0: off)."""
 
     refit_road: bool = False
     row_bands: int = 1
+    exclude_k: float = 0.0
 
 
 def _gain_spread(r: np.ndarray, g: np.ndarray, bins: int, at: np.ndarray) -> np.ndarray:
@@ -176,20 +180,24 @@ def _gain_spread(r: np.ndarray, g: np.ndarray, bins: int, at: np.ndarray) -> np.
     return np.interp(at, centre, spread) if centre else np.full(at.shape, robust_sigma(r))
 
 
-def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8, row_bands: int = 1) -> np.ndarray:
+def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8, row_bands: int = 1,
+                exclude: np.ndarray | None = None) -> np.ndarray:
     """Step 4: ``residual`` (NaN = invalid) in units of its own noise, measured per class of
     pixels: 1.4826 MAD over each ``gain`` quantile, interpolated in ``gain`` (median = road level).
     ``row_bands`` > 1: measured so within each band of rows (equal pixel counts), interpolated
     linearly between the bands' median rows: a pixel's noise also changes with its range (on the
     loop's tuning highway the fused map's z spread 1.5-2.5 in the farthest sixth of the rows and
-    0.8-0.95 in the nearest half; docs/stereo_detector.md), which the predicted gain does not capture."""
+    0.8-0.95 in the nearest half; docs/stereo_detector.md), which the predicted gain does not capture.
+    ``exclude``: pixels left out of the statistics (still scaled by their class's)."""
     ok = np.isfinite(residual)
     out = np.zeros(residual.shape)
-    if ok.sum() < 100:
+    stats = ok if exclude is None or (ok & ~exclude).sum() < 100 else ok & ~exclude
+    if stats.sum() < 100:
         return out
-    r, g = residual[ok], gain[ok]
+    r, g = residual[stats], gain[stats]
     level = float(np.median(r))
-    rows = np.nonzero(ok)[0].astype(np.float64)
+    rows = np.nonzero(stats)[0].astype(np.float64)
+    at_rows, at_gain = np.nonzero(ok)[0].astype(np.float64), gain[ok]
     edges = np.unique(np.quantile(rows, np.linspace(0, 1, max(1, row_bands) + 1)))
     band = np.clip(np.searchsorted(edges, rows, side="right") - 1, 0, max(0, len(edges) - 2))
     centres, spreads = [], []
@@ -197,17 +205,17 @@ def noise_units(residual: np.ndarray, gain: np.ndarray, bins: int = 8, row_bands
         sel = band == b
         if sel.sum() >= 50 * bins:
             centres.append(float(np.median(rows[sel])))
-            spreads.append(_gain_spread(r[sel], g[sel], bins, g))
+            spreads.append(_gain_spread(r[sel], g[sel], bins, at_gain))
     if len(centres) < 2:
-        spread = _gain_spread(r, g, bins, g)
+        spread = _gain_spread(r, g, bins, at_gain)
     else:
-        t = np.interp(rows, centres, np.arange(len(centres), dtype=np.float64))
+        t = np.interp(at_rows, centres, np.arange(len(centres), dtype=np.float64))
         i0 = np.minimum(np.floor(t).astype(int), len(centres) - 2)
         f = t - i0
         stack = np.stack(spreads)
-        cols = np.arange(len(r))
+        cols = np.arange(len(at_rows))
         spread = stack[i0, cols] * (1 - f) + stack[i0 + 1, cols] * f
-    out[ok] = (r - level) / np.maximum(spread, 1e-12)
+    out[ok] = (residual[ok] - level) / np.maximum(spread, 1e-12)
     return out
 
 
@@ -223,6 +231,9 @@ def fused_residual(fusion: FrameFusion, ev: PairEvidence | None, z: np.ndarray, 
         return z, valid, sigma, count
     valid = np.isfinite(residual)
     zf = noise_units(residual, gain, row_bands=opt.row_bands)
+    if opt.exclude_k > 0:      # again without what the first pass calls a defect, or a bump
+        far = ndimage.binary_dilation(valid & (np.abs(zf) >= opt.exclude_k), iterations=5)
+        zf = noise_units(residual, gain, row_bands=opt.row_bands, exclude=far)
     if opt.refit_road:
         residual, valid, zf = _refit_road(fusion, ev, residual, valid, zf, gain, seg, opt.row_bands)
     with np.errstate(divide="ignore", invalid="ignore"):

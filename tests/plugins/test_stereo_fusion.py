@@ -211,3 +211,32 @@ def test_noise_units_by_row_band_follow_a_noise_that_changes_with_range():
     dip[h // 2, w // 2] = -0.2
     z = noise_units(dip, gain, row_bands=6)
     assert abs(z[h // 2, w // 2] / (-0.2 / float(sd[h // 2, 0])) - 1) <= 0.1
+
+
+def test_noise_units_without_the_pothole_it_found():
+    """exclude_k's closed form: unit Gaussian noise with a -6 sigma pothole covering 14 % of the
+    top band of rows (six bands): measured with the pothole, the band's noise unit is too wide
+    (its noise 0.83 units, the pothole -5.0); without the pixels the first pass puts beyond 4
+    units (grown 5 px), the band's noise is 1 unit and the pothole -6 (its true depth)."""
+    from scipy import ndimage
+
+    from roadtwin_stereo.fusion import noise_units
+
+    rng = np.random.default_rng(0)
+    r = rng.normal(0, 1, (240, 320))
+    hole = np.zeros(r.shape, bool)
+    hole[10:40, 100:160] = True
+    r[hole] -= 6
+    g = np.ones_like(r)
+    first = noise_units(r, g, row_bands=6)
+    again = noise_units(r, g, row_bands=6, exclude=ndimage.binary_dilation(np.abs(first) >= 4, iterations=5))
+    band = np.zeros(r.shape, bool)
+    band[:40] = True
+
+    def spread(v):
+        return 1.4826 * np.median(np.abs(v - np.median(v)))
+
+    assert spread(first[band & ~hole]) < 0.87 and np.median(first[hole]) > -5.2
+    assert spread(again[band & ~hole]) == pytest.approx(1.0, abs=0.03)
+    assert np.median(again[hole]) == pytest.approx(-6.0, abs=0.1)
+    assert np.array_equal(noise_units(r, g, row_bands=6, exclude=None), first)      # off: as before
