@@ -30,7 +30,7 @@ reported cases stay unseen: ``tune_highway_D_seed23``, ``tune_town_seed3``.
     PYTHONPATH=.:plugins .venv/bin/python bench/loop.py [--cases town,highway_D] [--duration 3]
         [--size 1280x720] [--out out/loop] [--reuse] [--subpixel 6,2 | 0]
         [--floor DEPTH_M,AREA_M2 ...] [--reject E,R | 0] [--border-px N] [--k-region K | 0] [--refit-k K | 0]
-        [--fuse K[:L][:refit][:rows][,...]] [--no-surface]
+        [--fuse K[:L][:refit][:rows][:excl][,...]] [--no-surface]
 
 ``--floor``: the detector's physical floor (StereoDefectsParams floor_depth_m, floor_area_m2);
 repeated, every value is scored on the same disparity maps (a sweep). ``--reject E,R``: sub-pixel
@@ -45,7 +45,8 @@ off; road_model.py step 5). ``--fuse K[:L]``: each pair is detected on the evide
 on it through the drive's poses, L of them after it and the rest before (StereoDefects.run_sequence,
 roadtwin_stereo/fusion.py; 1 = each pair alone, the default); ``K:L:refit``: the local road model
 fitted again on the fused map, ``K:L:rows``: the fused map's noise measured in 6 bands of rows too
-(fusion.FusionOptions; both may be given); a comma list is a sweep on the same maps; "found" is still
+(fusion.FusionOptions), ``K:L:excl``: that noise measured again without the pixels the first pass put
+4 units or more from the road (any of them may be combined); a comma list is a sweep on the same maps; "found" is still
 scored per view, on that view's own detections.
 
 Targets (issue 20): surface RMSE <= 5 mm; footprint IoU >= 0.8 and depth error <= 1 cm within
