@@ -21,6 +21,7 @@ made by ``bench/synthetic_set.py`` / ``perception.py pack``).
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -147,6 +148,8 @@ def main(argv=None) -> int:
     ap.add_argument("--subsets", type=int, default=100)
     ap.add_argument("--subset-size", type=int, default=100)
     ap.add_argument("--min-cells", type=int, default=2, help="stride-16 cells of a class for its region descriptor")
+    ap.add_argument("--json", type=Path, help="write the rows here")
+    ap.add_argument("--plot", type=Path, help="a bar chart (PNG) of each KID as a multiple of the floor's")
     args = ap.parse_args(argv)
     try:
         size = parse_size(args.size)
@@ -173,7 +176,35 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print_table(rows)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    if args.plot:
+        plot(rows, args.plot)
     return 0
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    """Each set's KID (frame, pothole pixels, crack pixels) divided by the floor's, log scale."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [("kid_global", "whole frame"), *((f"kid_{c}", f"{c} pixels") for c in REGION_CLASSES)]
+    floor, sets = rows[0], rows[1:]
+    fig, ax = plt.subplots(figsize=(1.4 + 1.3 * len(sets), 3.6))
+    width = 0.8 / len(keys)
+    for j, (key, label) in enumerate(keys):
+        ratio = [r[key][0] / floor[key][0] for r in sets]
+        ax.bar(np.arange(len(sets)) + (j - (len(keys) - 1) / 2) * width, ratio, width, label=label)
+    ax.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax.set_yscale("log")
+    ax.set_xticks(np.arange(len(sets)), [r["set"] for r in sets], rotation=20, ha="right", fontsize=8)
+    ax.set_ylabel("KID / real-vs-real floor")
+    ax.set_title("How far synthetic frames look from real train frames (EfficientNet-Lite0 features)", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
 
 
 def print_table(rows: list[dict]) -> None:

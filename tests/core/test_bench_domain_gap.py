@@ -63,9 +63,15 @@ def test_a_run_on_the_tiny_data(gap, capsys, tmp_path):
         lab = TINY / "train/labels" / (f.stem + ".png")
         (inverted / "labels" / lab.name).write_bytes(lab.read_bytes())
     assert gap.main(["--real", str(TINY / "train"), "--synthetic", f"inverted={inverted}", "--limit", "4",
-                     "--size", "128x80", "--subsets", "5", "--subset-size", "4"]) == 0
+                     "--size", "128x80", "--subsets", "5", "--subset-size", "4",
+                     "--json", str(tmp_path / "gap.json"), "--plot", str(tmp_path / "gap.png")]) == 0
     out = capsys.readouterr().out
     assert "real, other roads (floor)" in out and "inverted" in out
+    import json
+
+    rows = json.loads((tmp_path / "gap.json").read_text())
+    assert [r["set"] for r in rows] == ["real, other roads (floor)", "inverted"]
+    assert (tmp_path / "gap.png").read_bytes()[:4] == b"\x89PNG"
     from _perception_data import load_frames
 
     model = gap.encoder()
