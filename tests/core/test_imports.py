@@ -58,7 +58,7 @@ _IMPORT_NAME = {"warp-lang": "warp", "opencv-python-headless": "cv2", "rerun-sdk
 #: platformdirs and pluggy under 0.01 s. scipy.signal (0.75 s) and scipy.interpolate (0.45 s) are
 #: deferred on the GPU side only (:data:`GPU_SIDE`).
 LAZY_HEAVY_REQUIRED: dict[str, str] = {
-    "matplotlib": "0.22 s (pyplot, matplotlib.tri: 0.7 s), for the plots, colour maps and one remesh fit only",
+    "matplotlib": "0.22 s (pyplot: more), for the plots and colour maps only",
     "trimesh": "1.2 s, for the mesh exporter only",
     "scipy.optimize": "0.75 s alone, 0.2-0.3 s more than what loading the plugins brings, for stereo calibration only",
 }
