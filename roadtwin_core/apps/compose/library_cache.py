@@ -31,6 +31,7 @@ from ...looks.cache import cache_root
 from ...model import DefectModel
 
 CORE_SOURCES = ("model.py", "remesh.py", "geometry.py", "params.py", "town/param_priors.py")
+BIG_FILE = 1 << 20           # bytes: larger files of a plugin's folder are fingerprinted by size and time
 LIBRARIES = ("numpy", "triangle", "shapely", "matplotlib", "manifold3d", "scipy")
 
 
@@ -44,7 +45,9 @@ def library_cache_root() -> Path | None:
 def _folder_fingerprint(folder: str) -> str:
     h = hashlib.sha256()     # every file: a type may read its shapes or priors from data beside its code
     for src in sorted(p for p in Path(folder).rglob("*") if p.is_file() and "__pycache__" not in p.parts):
-        h.update(str(src.relative_to(folder)).encode() + b"\0" + src.read_bytes() + b"\0")
+        stat = src.stat()       # a large data file by its size and time, not read on every compose
+        body = src.read_bytes() if stat.st_size <= BIG_FILE else f"{stat.st_size} {stat.st_mtime_ns}".encode()
+        h.update(str(src.relative_to(folder)).encode() + b"\0" + body + b"\0")
     return h.hexdigest()
 
 
