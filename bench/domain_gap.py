@@ -33,9 +33,9 @@ sys.path[:0] = [str(REPO), str(REPO / "bench")]
 from roadtwin_core.errors import RoadtwinError  # noqa: E402
 
 from _perception_data import CLASSES, load_frames, parse_size, road_of  # noqa: E402
+from _perception_train import MEAN, STD, augment  # noqa: E402
 
 REGION_CLASSES = ("pothole", "crack")
-MEAN, STD = (0.45, 0.45, 0.45), (0.25, 0.25, 0.25)
 
 
 def kid(x: np.ndarray, y: np.ndarray, subsets: int = 100, subset_size: int = 100, seed: int = 0) -> tuple[float, float]:
@@ -86,14 +86,13 @@ def features(model, images: np.ndarray, labels: np.ndarray, batch: int = 8, min_
     glob, regions = [], {c: ([], []) for c in REGION_CLASSES}
     with torch.no_grad():
         for s in range(0, len(images), batch):
-            x = torch.from_numpy(np.ascontiguousarray(images[s:s + batch])).permute(0, 3, 1, 2).float() / 255.0
-            x = (x - torch.tensor(MEAN).view(1, 3, 1, 1)) / torch.tensor(STD).view(1, 3, 1, 1)
+            x, y = augment(torch.from_numpy(np.ascontiguousarray(images[s:s + batch])),
+                           torch.from_numpy(np.ascontiguousarray(labels[s:s + batch])), None, train=False)
             h, w = x.shape[-2:]
             x = F.pad(x, (0, (-w) % 32, 0, (-h) % 32), mode="replicate")
             feats = model.features(x * model.in_a + model.in_b)
             f16, f32 = feats[-2], feats[-1]
             glob.append(torch.cat([f16.mean((2, 3)), f32.mean((2, 3))], 1).numpy())
-            y = torch.from_numpy(np.ascontiguousarray(labels[s:s + batch])).long()
             y = F.pad(y, (0, (-w) % 32, 0, (-h) % 32), value=255)
             for c in REGION_CLASSES:
                 share = F.avg_pool2d((y == CLASSES.index(c)).float()[:, None], 16)      # (B,1,H/16,W/16)

@@ -196,9 +196,11 @@ class StereoDefects:
             return
         p = check_params(params or StereoDefectsParams(), self.name)
 
+        refit = bool(fusion_options and fusion_options.refit_road)
+
         def prepare(inputs):           # each pair matched once: its residual serves its evidence and its detection
             r = self._metric_residual(inputs, p)
-            return (inputs, r), self._evidence(inputs, r, p)
+            return (inputs, r), self._evidence(inputs, r, p, plane_depth=refit)
 
         def detect(state, ev, others):
             inputs, r = state
@@ -218,8 +220,10 @@ class StereoDefects:
             raise RoadtwinError(f"{r.source}: fusing pairs needs metric disparity (K, baseline), not a transformed map")
         return r
 
-    def _evidence(self, inputs: dict[str, Any], r: SimpleNamespace, p: StereoDefectsParams) -> PairEvidence | None:
-        return pair_evidence(r.z, r.valid, r.sigma, r.disp, r.K, float(r.baseline), pose_of(inputs, self.name), p.k_grow)
+    def _evidence(self, inputs: dict[str, Any], r: SimpleNamespace, p: StereoDefectsParams,
+                  plane_depth: bool = True) -> PairEvidence | None:
+        return pair_evidence(r.z, r.valid, r.sigma, r.disp, r.K, float(r.baseline), pose_of(inputs, self.name), p.k_grow,
+                             plane_depth=plane_depth)
 
     def reconstruct(self, inputs: dict[str, Any], params: StereoDefectsParams | None = None) -> list[DefectModel]:
         """The models, untextured: a look needs texture files, which :meth:`write` makes."""

@@ -72,10 +72,11 @@ def _road_plane(road_disp: np.ndarray, ok: np.ndarray, K: np.ndarray, baseline: 
 
 def pair_evidence(z: np.ndarray, valid: np.ndarray, sigma: float, disp: np.ndarray, K: np.ndarray,
                   baseline: float, cam_to_world: np.ndarray, k_grow: float = 3.0,
-                  blur_px: float = 2.0) -> PairEvidence | None:
+                  blur_px: float = 2.0, plane_depth: bool = True) -> PairEvidence | None:
     """Step 1 for one pair from segment.road_residual's ``z``, ``valid``, ``sigma`` (px of
     ``disp``, the raw disparity). None when too little road. ``blur_px``: the detector's
-    smoothing (SegmentParams.blur_px), applied to ``plane_depth_m`` as it was to ``z``."""
+    smoothing (SegmentParams.blur_px), applied to ``plane_depth_m`` as it was to ``z``;
+    ``plane_depth``: whether to make ``plane_depth_m`` (only ``refit_road`` reads it)."""
     d = np.asarray(disp, np.float64)
     road_px = np.where(valid & np.isfinite(d), d - z * sigma, np.nan)
     ok = np.isfinite(road_px) & (z > -k_grow)
@@ -86,13 +87,14 @@ def pair_evidence(z: np.ndarray, valid: np.ndarray, sigma: float, disp: np.ndarr
     with np.errstate(invalid="ignore", divide="ignore"):
         m_per_px = np.where(road_disp > 0, height / road_disp, np.nan)
     depth = np.where(valid, -z * sigma * m_per_px, np.nan)
-    off_plane = np.where(valid & np.isfinite(d), d - plane, 0.0)
-    off_plane -= row_levels(off_plane, ok)[:, None]   # what is constant along a row is road (road_model.py step 2)
-    below_plane = -smooth_valid(off_plane, valid & np.isfinite(d), blur_px)
-    plane_depth = np.where(valid, below_plane * m_per_px, np.nan)
+    below = None
+    if plane_depth:
+        off_plane = np.where(valid & np.isfinite(d), d - plane, 0.0)
+        off_plane -= row_levels(off_plane, ok)[:, None]   # what is constant along a row is road (road_model.py step 2)
+        below_plane = -smooth_valid(off_plane, valid & np.isfinite(d), blur_px)
+        below = np.where(valid, below_plane * m_per_px, np.nan).astype(np.float32)
     return PairEvidence(depth.astype(np.float32), (sigma * m_per_px).astype(np.float32), m_per_px, road_disp,
-                        np.asarray(K, np.float64), float(baseline), np.asarray(cam_to_world, np.float64),
-                        plane_depth.astype(np.float32))
+                        np.asarray(K, np.float64), float(baseline), np.asarray(cam_to_world, np.float64), below)
 
 
 def _lookup(cur: PairEvidence, other: PairEvidence, fields=("depth_m", "noise_m")) -> list[np.ndarray]:

@@ -25,8 +25,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy
-
 from ...looks.cache import cache_root
 from ...model import DefectModel
 
@@ -63,24 +61,25 @@ def _core_fingerprint() -> str:
         except importlib.metadata.PackageNotFoundError:
             version = "absent"
         h.update(f"{lib} {version}\0".encode())
-    h.update(f"python {sys.version_info[:2]} numpy {numpy.__version__}".encode())
+    h.update(f"python {sys.version_info[:2]}".encode())
     return h.hexdigest()
 
 
+@functools.lru_cache(maxsize=None)
+def _file_fingerprint(path: str) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
 def type_fingerprint(defect_type) -> str | None:
-    """The code fingerprint of a registered defect type: its defining package's sources (a module
+    """The code fingerprint of a registered defect type: its defining package's files (a module
     outside a package: that file). None when its code has no file (made at run time): not cached."""
-    module = sys.modules.get(type(defect_type).__module__)
-    path = getattr(module, "__file__", None)
+    name = type(defect_type).__module__
+    path = getattr(sys.modules.get(name), "__file__", None)
     if not path:
         return None
-    root = Path(path).resolve()
-    package = type(defect_type).__module__.split(".")[0]
-    top = sys.modules.get(package)
-    if top is not None and getattr(top, "__path__", None):
-        root = Path(list(top.__path__)[0]).resolve()
-        return f"{_folder_fingerprint(str(root))}:{_core_fingerprint()}"
-    return f"{hashlib.sha256(root.read_bytes()).hexdigest()}:{_core_fingerprint()}"
+    folders = list(getattr(sys.modules.get(name.split(".")[0]), "__path__", None) or [])
+    code = _folder_fingerprint(str(Path(folders[0]).resolve())) if folders else _file_fingerprint(str(Path(path).resolve()))
+    return f"{code}:{_core_fingerprint()}"
 
 
 def model_key(defect_type, type_name: str, index: int, seed: int, road_edge_m: float, priors) -> str | None:
