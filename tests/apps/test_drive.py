@@ -31,6 +31,7 @@ REPO = Path(__file__).resolve().parents[2]
 RIG = REPO / "tests" / "data" / "small_rig.toml"
 EPOCH_NS = 1_700_000_000 * 10**9        # the bag's stamps: the drive's clock + 1.7e9 s
 LANE = "avenue1_02_1"                   # a pothole in its right wheel track, 14 m in
+PARKED_LANE = "north_00_1"              # a car of the props layer stands in it, 15 m in
 
 
 @pytest.fixture(scope="module")
@@ -208,11 +209,11 @@ def _cli(*args):
                           capture_output=True, text=True, env=env, timeout=120, cwd=REPO)
 
 
-@pytest.mark.parametrize("case", ["off_road", "no_sensor", "other_vehicle"])
+@pytest.mark.parametrize("case", ["off_road", "no_sensor", "other_vehicle", "parked_car"])
 def test_bad_input_is_one_line_and_nothing_written(town, tmp_path, case):
     """A route that leaves the road, a rig without the sensor named, a sweep's speed profile for
-    another vehicle: one line on stderr, exit 2, and an earlier output stays as it was (no
-    temporary folder beside it)."""
+    another vehicle, a lane with a car standing in it: one line on stderr, exit 2, and an earlier
+    output stays as it was (no temporary folder beside it)."""
     out = tmp_path / "out"
     out.mkdir()
     (out / "earlier.txt").write_text("an earlier drive")
@@ -225,11 +226,16 @@ def test_bad_input_is_one_line_and_nothing_written(town, tmp_path, case):
     elif case == "no_sensor":
         args[-1] = "imu,thermal"
         expect = "has no sensor 'thermal'"
-    else:
+    elif case == "other_vehicle":
         prof = tmp_path / "recommendations.json"
         prof.write_text(json.dumps([{"defect": "D00021", "vehicle": "truck", "recommended_speed_kmh": 10}]))
         args += ["--speed-profile", prof]
         expect = "is for vehicle truck"
+    elif case == "parked_car":
+        args += ["--route", f"lane:{PARKED_LANE}"]
+        expect = "runs into /Town/Props/LaneVehicles instance"
+    else:
+        raise AssertionError(case)
     r = _cli(*args)
     assert r.returncode == 2, (r.stdout, r.stderr)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
@@ -262,6 +268,43 @@ def test_auto_route_and_a_sweeps_speed_profile(town, tmp_path):
     assert speed_at == pytest.approx({"D00021": 12.0, "D00029": 18.0})
     assert pieces[0][2] * 3.6 == pytest.approx(30.0) and pieces[-1][2] * 3.6 == pytest.approx(30.0)
     assert {"D00021", "D00029"} <= set(ctx["footprints"]) < {d.id for d in ctx["town"].defects}   # the reachable ones
+
+
+def _standing_cars(stage: Path) -> list[tuple[np.ndarray, float]]:
+    """(XY, plan radius) of every instance of the props' lane vehicles, read with pxr: the
+    radius is the half-diagonal of its prototype's bounding box."""
+    from pxr import Usd, UsdGeom
+
+    st = Usd.Stage.Open(str(stage))
+    pi = UsdGeom.PointInstancer(st.GetPrimAtPath("/Town/Props/LaneVehicles"))
+    protos = pi.GetPrototypesRel().GetTargets()
+    cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), ["default", "render"])
+    half = []
+    for path in protos:
+        box = cache.ComputeUntransformedBound(st.GetPrimAtPath(path)).ComputeAlignedRange()
+        half.append(0.5 * np.hypot(*(np.array(box.GetMax()) - np.array(box.GetMin()))[:2]))
+    pos = np.array(pi.GetPositionsAttr().Get())
+    return [(p[:2], half[i]) for p, i in zip(pos, pi.GetProtoIndicesAttr().Get())]
+
+
+def test_auto_route_keeps_clear_of_the_cars_standing_in_lanes(town):
+    """The sample town's longest chain of lanes (320 m) has two cars of the props layer standing
+    in it; a 300 m ``--route auto`` drive keeps the body (1.8 m x 4.5 m about each route point)
+    clear of every such car."""
+    from roadtwin_core.apps.drive import DriveOptions, prepare_drive
+
+    cars = _standing_cars(town)
+    assert len(cars) >= 3
+    ctx = prepare_drive(town, DriveOptions(route="auto", length_m=300.0, rig=RIG, sensors="imu"), pm=PluginManager())
+    route, car_body = ctx["route"], (ctx["vehicle"].body_width_m, ctx["vehicle"].body_length_m)
+    s = np.arange(0.0, route.length, 0.1)
+    p, t = route.at(s)
+    for c, r in cars:
+        d = c - p
+        along = np.abs((d * t).sum(1)) - car_body[1] / 2
+        across = np.abs(d[:, 0] * -t[:, 1] + d[:, 1] * t[:, 0]) - car_body[0] / 2
+        gap = np.hypot(np.maximum(along, 0), np.maximum(across, 0))
+        assert (gap > r).all(), (c, route.source)
 
 
 # ------------------------------------------------------------------------------------ many drives

@@ -1,10 +1,12 @@
 """Where the vehicle drives: a route (a world XY polyline the CG follows) and the speed along it.
 
 Routes: ``auto`` (lanes of the stage chained end to start through junctions, the stretch of
-``length`` m whose wheel tracks meet the most defects), ``lane:ID[,ID...]`` (those lanes
+``length`` m whose wheel tracks meet the most defects, clear of the vehicles standing in the
+lanes: :mod:`.obstacles`), ``lane:ID[,ID...]`` (those lanes
 chained in the order given) or a poses file (text rows ``x y``, ``x y z`` or TUM
 ``t x y z qx qy qz qw``; or a JSON list of ``[x, y]``). Every route is checked against the
-road's collision mesh: both wheel tracks must stay on it, else one line naming where it leaves.
+road's collision mesh: both wheel tracks must stay on it, else one line naming where it leaves;
+and against what stands in the lanes: one line naming the instance it runs into.
 
 Speed: one speed (``--speed`` km/h), or a sweep's ``recommendations.json`` (``--speed-profile``):
 cruise at ``--speed`` and cross each defect of the route at the speed the sweep recommended for
@@ -21,6 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import RoadtwinError
+from .obstacles import blocked_spans, free_stretches
+
+MIN_AUTO_M = 10.0      # shortest stretch --route auto drives between vehicles standing in a lane
 
 __all__ = ["Route", "SpeedProfile", "build_route", "check_on_road", "constant_speed", "load_speed_profile",
            "read_recommendations", "speed_profile", "wheel_hits"]
@@ -127,31 +132,18 @@ def wheel_hits(route: Route, defects: list[dict], half_track_m: float, tire_half
 
 
 def build_route(spec: str, stage_lanes, defects: list[dict], length_m: float | None, half_track_m: float,
-                tire_half_width_m: float) -> Route:
-    """``auto``, ``lane:ID,...`` or a poses file path (see the module doc)."""
+                tire_half_width_m: float, obstacles: list | None = None, body_m: tuple[float, float] = (1.8, 4.5)
+                ) -> Route:
+    """``auto``, ``lane:ID,...`` or a poses file path (see the module doc). ``obstacles``: what
+    stands in the lanes (:mod:`.obstacles`), which ``auto`` keeps clear of with a body of
+    ``body_m`` (width, length); other routes are checked by the caller."""
     spec = str(spec).strip()
     if spec == "auto" or spec.startswith("lane:"):
         lanes = list(stage_lanes)
         if not lanes:
             raise RoadtwinError("route: the stage has no driving lanes (roadtwin:segment:centerline)")
         if spec == "auto":
-            best = None
-            for chain in _chains(lanes):
-                r = _chain_route(chain, "auto")
-                window = min(length_m or r.length, r.length)
-                hits = wheel_hits(r, defects, half_track_m, tire_half_width_m)
-                # the window of `window` m with the most defects in the wheel tracks
-                starts = [0.0] + [max(0.0, h["s"] - 15.0) for h in hits]
-                for s0 in starts:
-                    s0 = min(s0, r.length - window)
-                    n = sum(s0 + 5.0 <= h["s"] <= s0 + window - 5.0 for h in hits)
-                    key = (n, window, -s0)
-                    if best is None or key > best[0]:
-                        best = (key, r, s0, window)
-            _, r, s0, window = best
-            r = r.crop(s0, s0 + window)
-            r.source = f"auto: lanes {' > '.join(r.lanes)} from s = {s0:.1f} m"
-            return r
+            return _auto_route(lanes, defects, length_m, half_track_m, tire_half_width_m, obstacles or [], body_m)
         ids = [x.strip() for x in spec[5:].split(",") if x.strip()]
         by_id = {l.id: l for l in lanes}
         missing = [i for i in ids if i not in by_id]
@@ -166,6 +158,36 @@ def build_route(spec: str, stage_lanes, defects: list[dict], length_m: float | N
     xy = _read_route_file(path)
     r = Route(xy, f"file {path.name}")
     return r.crop(0.0, min(length_m, r.length)) if length_m else r
+
+
+def _auto_route(lanes, defects, length_m, half_track_m, tire_half_width_m, obstacles, body_m) -> Route:
+    """The stretch of ``length_m`` (or less where the chain is shorter or a vehicle stands in the
+    lane) whose wheel tracks meet the most defects; stretches cut short by standing vehicles
+    only where no chain has a clear one."""
+    best = None
+    for chain in _chains(lanes):
+        r = _chain_route(chain, "auto")
+        full = min(length_m or r.length, r.length)
+        hits = wheel_hits(r, defects, half_track_m, tire_half_width_m)
+        for a, b in free_stretches(r.length, blocked_spans(r, obstacles, *body_m)):
+            window = min(full, b - a)
+            if window < min(full, MIN_AUTO_M):     # a stretch cut short between standing vehicles
+                continue
+            # the window of `window` m with the most defects in the wheel tracks
+            for s0 in [a] + [h["s"] - 15.0 for h in hits]:
+                s0 = min(max(s0, a), b - window)
+                n = sum(s0 + 5.0 <= h["s"] <= s0 + window - 5.0 for h in hits)
+                key = (window >= full, n, window, -s0)
+                if best is None or key > best[0]:
+                    best = (key, r, s0, window)
+    if best is None:
+        raise RoadtwinError(f"route auto: vehicles stand in every lane at least every {MIN_AUTO_M:g} m "
+                            f"({len(obstacles)} standing instances): give lanes or a poses file")
+    (clear, *_), r, s0, window = best
+    r = r.crop(s0, s0 + window)
+    r.source = f"auto: lanes {' > '.join(r.lanes)} from s = {s0:.1f} m" + (
+        "" if clear else f" ({window:.0f} m: vehicles stand in the lanes)")
+    return r
 
 
 def _read_route_file(path: Path) -> np.ndarray:

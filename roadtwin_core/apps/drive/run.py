@@ -27,6 +27,7 @@ from ...vehicle.roads import Occupancy
 from .bag import BagWriter
 from .contacts import contact_events, defect_footprints, write_events
 from .motion import CORRIDOR_M, crop_mesh, drive_vehicle, write_trajectory
+from .obstacles import check_clear, lane_obstacles
 from .rig import load_rig, mount, select
 from .route import build_route, check_on_road, constant_speed, read_recommendations, speed_profile, wheel_hits
 from .rrd import RrdWriter
@@ -165,10 +166,15 @@ def prepare_drive(stage: Path, opt: DriveOptions, pm=None, loaded: dict | None =
     loaded = loaded if loaded is not None else load_stage(stage, needs_render)
     town, road, defects = loaded["town"], loaded["road"], loaded["defects"]
     half_track, half_tire = vehicle.track_front_m / 2, vehicle.tire_width_m / 2
-    route = build_route(opt.route, loaded["lanes"], defects, opt.length_m, half_track, half_tire)
+    if "obstacles" not in loaded:
+        loaded["obstacles"] = lane_obstacles(town)
+    body = (vehicle.body_width_m, vehicle.body_length_m)
+    route = build_route(opt.route, loaded["lanes"], defects, opt.length_m, half_track, half_tire,
+                        loaded["obstacles"], body)
     if "occupancy" not in loaded:
         loaded["occupancy"] = Occupancy(road.vertices, road.faces)
     check_on_road(route, loaded["occupancy"], half_track, half_tire)
+    check_clear(route, loaded["obstacles"], *body)
     hits = wheel_hits(route, defects, half_track, half_tire)
     profile = (speed_profile(recommended, hits, opt.speed_kmh, opt.speed_profile.name) if recommended is not None
                else constant_speed(opt.speed_kmh))
