@@ -64,15 +64,32 @@ def bootstrap_gain(ia, ua, ib, ub, n_boot: int = 2000, seed: int = 0, level: flo
 TWO_DOMAIN_ARMS = ("pretrain", "mixed")     # the arms --domain-bn changes; the others are the same runs without it
 
 
+# Config keys added after runs were recorded, with the behaviour those runs had: a run JSON
+# written before ``bn_stats`` existed was evaluated with its trained statistics, and so on.
+ADDED_KEYS = {"style": None, "bn_stats": "train", "domain_bn": False, "pseudo_keep": None}
+
+
 def _comparable(run: dict) -> dict:
     """A run's configuration as far as it must match the others': ``domain_bn`` apart (it changes
     only (b) and (c), checked among them)."""
-    return {k: v for k, v in run["config"].items() if k != "domain_bn"}
+    return {k: v for k, v in {**ADDED_KEYS, **run["config"]}.items() if k != "domain_bn"}
 
 
-def load_runs(paths) -> list[dict]:
+def _as_trained(run: dict, f: Path) -> dict:
+    """The run evaluated with its trained batch-norm statistics (``report --as-trained``): its
+    ``as_trained`` evaluation where AdaBN replaced them, the run itself where it never did."""
+    cfg = {**ADDED_KEYS, **run["config"]}
+    if cfg["bn_stats"] == "train":
+        return run
+    if "as_trained" not in run:
+        raise RoadtwinError(f"{f}: evaluated after AdaBN and without its as-trained evaluation: --as-trained cannot use it")
+    return {**run, "I": run["as_trained"]["I"], "U": run["as_trained"]["U"], "config": {**cfg, "bn_stats": "train"}}
+
+
+def load_runs(paths, as_trained: bool = False) -> list[dict]:
     """Run JSONs (files, or folders holding run_*.json); the same (arm, fraction, seed) twice must
-    agree, and every run must be evaluated on the same frames."""
+    agree, and every run must be evaluated on the same frames. ``as_trained``: every run with its
+    trained batch-norm statistics, so that runs with and without AdaBN compare."""
     files = []
     for p in map(Path, paths):
         files += sorted(p.glob("run_*.json")) if p.is_dir() else [p]
@@ -85,10 +102,14 @@ def load_runs(paths) -> list[dict]:
             key = (r["arm"], r["fraction"], r["seed"])
         except (ValueError, KeyError, TypeError):
             raise RoadtwinError(f"{f}: not a run JSON of bench/perception.py") from None
+        if as_trained:
+            r = _as_trained(r, f)
+            r.pop("as_trained", None)
         if r["eval"]["stems"] != (runs[0]["eval"]["stems"] if runs else r["eval"]["stems"]):
             raise RoadtwinError(f"{f}: evaluated on other frames than {files[0]} ({r['eval']['folder']})")
         if runs and _comparable(r) != _comparable(runs[0]):
-            diff = sorted(k for k in r["config"] if _comparable(r).get(k) != _comparable(runs[0]).get(k))
+            a, b = _comparable(r), _comparable(runs[0])
+            diff = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
             raise RoadtwinError(f"{f}: trained with another configuration than {runs[0]['_file']} ({', '.join(diff)})")
         two = [x for x in runs + [r] if x["arm"] in TWO_DOMAIN_ARMS]
         if len({bool(x["config"].get("domain_bn")) for x in two}) > 1:
@@ -181,7 +202,9 @@ def markdown(summary: dict) -> str:
     cols = list(METRICS)
     head = ["run", "seeds"] + [c.replace("_fg", " w/o bg").replace("_", " ") for c in cols] + ["mix (CV)"]
     lines = [f"Evaluation: `{summary['eval']['folder']}` ({summary['eval']['frames']} frames); "
-             f"{summary['steps_per_run']} optimizer steps in every run; IoU in points, mean ± std over seeds.", "",
+             f"{summary['steps_per_run']} optimizer steps in every run; IoU in points, mean ± std over seeds."
+             + (" Every run with its trained batch-norm statistics (`--as-trained`: AdaBN's evaluations set aside)."
+                if summary["config"].get("bn_stats", "train") == "train" and summary.get("as_trained") else ""), "",
              "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for name, t in summary["runs"].items():
         mix = t.get("mix")

@@ -262,9 +262,10 @@ def cmd_job(common: str, spec_text: str, log=print) -> None:
         write_json(Path(spec["output"]), part)
 
 
-def report(paths, out: Path, n_boot: int = 2000, grid_fraction: float = 0.1, log=print) -> dict:
-    runs = load_runs(paths)
+def report(paths, out: Path, n_boot: int = 2000, grid_fraction: float = 0.1, log=print, as_trained: bool = False) -> dict:
+    runs = load_runs(paths, as_trained)
     summary = summarize(runs, n_boot)
+    summary["as_trained"] = as_trained
     summary["cv"] = {f"{r['name']}": r["mix"] for r in runs if r.get("mix") and r["seed"] == min(x["seed"] for x in runs)}
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "results.json", summary)
@@ -363,6 +364,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True)
     r.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples (default 2000, seeded)")
     r.add_argument("--grid-fraction", type=float, default=0.1, help="fraction shown in grid.jpg (default 0.1)")
+    r.add_argument("--as-trained", action="store_true", help="every run with its trained batch-norm statistics "
+                   "(the as-trained evaluation of --bn-stats real runs): compares runs with and without AdaBN")
     c = sub.add_parser("choose-set", help="the synthetic set the mixed arm uses: best CV score on the train roads")
     c.add_argument("records", nargs="+", help="OUT/shared/cv_PCT.json of train --cv-only, one per synthetic set")
     c.add_argument("--metric", default=None, help="IoU compared (default: the records' CV metric)")
@@ -389,7 +392,7 @@ def main(argv=None) -> int:
         elif args.cmd == "choose-set":
             cmd_choose_set(args.records, Path(args.out), args.metric)
         else:
-            report(args.results, Path(args.out), args.bootstrap, args.grid_fraction)
+            report(args.results, Path(args.out), args.bootstrap, args.grid_fraction, as_trained=args.as_trained)
     except RoadtwinError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -246,6 +246,47 @@ def test_domain_bn_arms_run_and_are_recorded(tmp_path):
         load_runs([tmp_path / "plain" / "run_mixed_100_seed0.json", tmp_path / "dsbn" / "run_pretrain_100_seed0.json"])
 
 
+def _run_json(path: Path, arm: str, letter: str, config: dict, I, U, **extra) -> Path:
+    run = {"arm": arm, "letter": letter, "fraction": 1.0, "seed": 0, "name": f"{arm}@100%", "config": config,
+           "steps": 4500, "steps_per_s": 1.0, "wall_seconds": 1.0, "eval": {"folder": "val", "stems": ["f0", "f1"]},
+           "I": I, "U": U, **extra}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(run))
+    return path
+
+
+def test_report_as_trained_compares_runs_with_and_without_adabn(tmp_path):
+    """A real-only run recorded before --bn-stats existed (no such key in its config) and a mixed
+    run evaluated after AdaBN: the plain report refuses the pair and names bn_stats; --as-trained
+    takes the mixed run's as-trained evaluation, so both are evaluated with trained statistics; a
+    run evaluated after AdaBN without an as-trained evaluation is refused."""
+    _bench()
+    from _perception_report import load_runs
+    from roadtwin_core.errors import RoadtwinError
+
+    base = {"steps": 2250, "pretrain_steps": 2250, "batch": 16, "encoder": "efficientnet-lite0"}
+    n = 5                                              # classes of the per-frame I/U rows
+    old = _run_json(tmp_path / "old" / "run_real_100_seed0.json", "real", "a", base, [[1] * n] * 2, [[2] * n] * 2)
+    adapted, trained = [[3] * n] * 2, [[4] * n] * 2
+    new = _run_json(tmp_path / "new" / "run_mixed_100_seed0.json", "mixed", "c",
+                    {**base, "bn_stats": "real", "domain_bn": False, "pseudo_keep": None}, adapted, [[5] * n] * 2,
+                    as_trained={"I": trained, "U": [[6] * n] * 2})
+    with pytest.raises(RoadtwinError, match="bn_stats"):
+        load_runs([old, new])
+    runs = {r["arm"]: r for r in load_runs([old, new], as_trained=True)}
+    assert runs["mixed"]["I"] == trained and runs["mixed"]["U"] == [[6] * n] * 2 and "as_trained" not in runs["mixed"]
+    assert runs["real"]["I"] == [[1] * n] * 2
+    # a run of today's code with the default statistics compares with the old one as it is
+    today = _run_json(tmp_path / "today" / "run_mixed_100_seed0.json", "mixed", "c",
+                      {**base, "bn_stats": "train", "domain_bn": False, "pseudo_keep": None, "style": None},
+                      adapted, [[5] * n] * 2)
+    assert len(load_runs([old, today])) == 2
+    bare = _run_json(tmp_path / "bare" / "run_mixed_100_seed0.json", "mixed", "c", {**base, "bn_stats": "real"},
+                     adapted, [[5] * n] * 2)
+    with pytest.raises(RoadtwinError, match="as-trained"):
+        load_runs([old, bare], as_trained=True)
+
+
 def test_class_balanced_thresholds_keep_the_share_of_each_class():
     """CBST's rule on a closed form: class 1 predicted with confidences evenly spread over
     (0.3, 0.9], class 2 over (0.6, 1.0]: keeping 25 % puts class 1's threshold at 0.75 and class
