@@ -39,14 +39,15 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from roadtwin_core import RoadtwinError, SampledSurface, SurfaceModel, check_params, field, hookimpl
 from roadtwin_core.atomic import atomic_files
+from roadtwin_core.render.cameras import camera_matrix
 from roadtwin_core.usd import apply_labels, new_stage, read_mesh, safe_prim_name, set_attrs, set_kind, write_mesh
 
-from .reconstruct import (apply, check_points, fuse_frames, ground_alignment, intrinsics, load_extrinsic, load_frame, load_mask,
+from .reconstruct import (apply, check_points, fuse_frames, ground_alignment, load_extrinsic, load_frame, load_mask,
                           load_poses, local_heights, mask_road_points, surface_mesh)
 from .simulate import _raycasting_scene, _vertical_heights, pothole_road_mesh, save_frames
 
 __all__ = ["LidarSurfaceReconstructor", "LidarSurface", "LidarSurfaceParams", "apply",
-           "fuse_frames", "ground_alignment", "intrinsics", "load_extrinsic", "load_frame", "load_mask", "load_poses",
+           "fuse_frames", "ground_alignment", "load_extrinsic", "load_frame", "load_mask", "load_poses",
            "local_heights", "mask_road_points", "pothole_road_mesh", "read_surface_asset", "save_frames",
            "surface_mesh", "write_surface_asset"]
 
@@ -110,7 +111,7 @@ def _apply_masks(frames, names, masks, K, cam_from_lidar, who: str):
         raise RoadtwinError(f"{who}: semantic masks need the camera intrinsics K (fx, fy, cx, cy)")
     if cam_from_lidar is None:
         raise RoadtwinError(f"{who}: semantic masks need the camera-from-LiDAR extrinsic (4x4)")
-    Km = intrinsics(K)
+    Km = camera_matrix(K, "K")
     T = load_extrinsic(cam_from_lidar)
     out = []
     for i, ((pts, lab), name, m) in enumerate(zip(frames, names, masks)):

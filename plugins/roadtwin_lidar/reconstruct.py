@@ -38,6 +38,7 @@ from scipy.spatial import Delaunay, cKDTree
 from scipy.spatial.transform import Rotation
 
 from roadtwin_core import RoadtwinError
+from roadtwin_core.render.cameras import camera_matrix
 
 
 # ---------------------------------------------------------------------------- input
@@ -202,20 +203,6 @@ def fuse_frames(frames: list[tuple[np.ndarray, np.ndarray | None]], poses: np.nd
 
 
 # ---------------------------------------------------------------------------- semantic masks
-def intrinsics(k, what: str = "K") -> np.ndarray:
-    """3x3 camera matrix from fx, fy, cx, cy or 9 entries."""
-    try:
-        a = np.asarray(k, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
-        raise RoadtwinError(f"{what}: expected fx, fy, cx, cy or a 3x3 matrix, got {k!r}") from None
-    if a.size == 4:
-        fx, fy, cx, cy = a
-        a = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0])
-    if a.size != 9 or not np.isfinite(a).all() or a[0] <= 0 or a[4] <= 0:
-        raise RoadtwinError(f"{what}: expected fx, fy, cx, cy (or 3x3) with positive focal lengths, got {k!r}")
-    return a.reshape(3, 3)
-
-
 def load_extrinsic(src, what: str = "cam_from_lidar") -> np.ndarray:
     """4x4 camera-from-LiDAR transform from an array or a text file (16 numbers, or 12 = 3x4)."""
     name = what

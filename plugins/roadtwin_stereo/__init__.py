@@ -45,10 +45,11 @@ import numpy as np
 
 from roadtwin_core import DefectLook, DefectModel, RoadtwinError, check_params, hookimpl
 from roadtwin_core.atomic import atomic_output_dir
+from roadtwin_core.render.cameras import camera_matrix
 from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
 from .fusion import FrameFusion, FusionOptions, PairEvidence, fused_residual, fused_sequence, pair_evidence
-from .inputs import (StereoDefectsParams, StereoResult, apply_road_mask, intrinsics_matrix, pose_of, read_disparity,
+from .inputs import (StereoDefectsParams, StereoResult, apply_road_mask, pose_of, read_disparity,
                      read_image)
 from .mesh import DefectInstance, reconstruct_instance
 from .road_model import metric_road_depth
@@ -75,7 +76,7 @@ class StereoDefects:
         """The inputs checked, the disparity (matched from a pair when given one), the road model
         and the residual to it in noise units (segment.road_residual): what detection and fusion start from."""
         transformed_in = bool(inputs.get("transformed", False))
-        K = intrinsics_matrix(inputs["K"]) if inputs.get("K") is not None else None
+        K = camera_matrix(inputs["K"], "calibration K") if inputs.get("K") is not None else None
         baseline = inputs.get("baseline")
         if baseline is not None and not (np.isfinite(baseline) and baseline > 0):
             raise RoadtwinError(f"{self.name}: baseline must be a positive number of meters, got {baseline!r}")

@@ -156,11 +156,3 @@ def pose_of(inputs: dict[str, Any], who: str) -> np.ndarray:
     return pose
 
 
-def intrinsics_matrix(k: Any) -> np.ndarray:
-    a = np.asarray(k, dtype=np.float64).ravel()
-    if a.size == 4:
-        fx, fy, cx, cy = a
-        a = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0])
-    if a.size != 9 or not np.isfinite(a).all() or a[0] <= 0 or a[4] <= 0:
-        raise RoadtwinError(f"calibration K must be 3x3 (or fx, fy, cx, cy) with positive focal lengths, got {k!r}")
-    return a.reshape(3, 3)

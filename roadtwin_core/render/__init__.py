@@ -5,7 +5,7 @@ render's output. Renderers themselves are plugins (``roadtwin_register_renderers
 here imports USD at module level (``stage_lanes`` does, when called) or torch
 (``roadtwin_core.datasets.render_output`` does, when its class is first used).
 """
-from .cameras import (Camera, Intrinsics, KeepOut, Lane, StereoCamera, lane_keep_out, lane_trajectory, load_poses_file,
+from .cameras import (Camera, Intrinsics, camera_matrix, KeepOut, Lane, StereoCamera, lane_keep_out, lane_trajectory, load_poses_file,
                       look_from, rotation_ypr, sample_lane_poses)
 from .events import EventSimulator, luminance
 from .frames import WEATHERS, Frame, RenderParams
@@ -14,7 +14,7 @@ from .scene import (BASE_CLASSES, DEFAULT_MATERIAL, IGNORE_INDEX, MARKING_CLASS,
 from .tonemap import to_srgb8
 
 __all__ = [
-    "Camera", "Intrinsics", "KeepOut", "Lane", "StereoCamera", "lane_keep_out", "lane_trajectory", "load_poses_file",
+    "Camera", "Intrinsics", "KeepOut", "camera_matrix", "Lane", "StereoCamera", "lane_keep_out", "lane_trajectory", "load_poses_file",
     "look_from",
     "rotation_ypr", "sample_lane_poses", "EventSimulator", "luminance", "WEATHERS", "Frame", "RenderParams",
     "BASE_CLASSES", "DEFAULT_MATERIAL", "IGNORE_INDEX", "MARKING_CLASS", "GroundSampler", "RenderMaterial",

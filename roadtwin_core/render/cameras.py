@@ -69,6 +69,22 @@ class Intrinsics:
                 "cy": self.cy, "K": self.K.tolist()}
 
 
+def camera_matrix(k, what: str = "K") -> np.ndarray:
+    """A 3x3 camera matrix from fx, fy, cx, cy or its 9 entries (a calibration file's or a
+    reconstructor input's ``K``): one line naming ``what`` when it is neither, or not finite, or a
+    focal length is not positive."""
+    try:
+        a = np.asarray(k, dtype=np.float64).ravel()
+    except (TypeError, ValueError):
+        raise RoadtwinError(f"{what}: expected fx, fy, cx, cy or a 3x3 matrix, got {k!r}") from None
+    if a.size == 4:
+        fx, fy, cx, cy = a
+        a = np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0])
+    if a.size != 9 or not np.isfinite(a).all() or a[0] <= 0 or a[4] <= 0:
+        raise RoadtwinError(f"{what}: expected fx, fy, cx, cy (or 3x3) with positive focal lengths, got {k!r}")
+    return a.reshape(3, 3)
+
+
 def rotation_ypr(yaw: float, pitch: float, roll: float = 0.0) -> np.ndarray:
     """Camera-to-world rotation (columns x right, y down, z forward) from angles in radians."""
     f = np.array([math.cos(pitch) * math.cos(yaw), math.cos(pitch) * math.sin(yaw), math.sin(pitch)])

@@ -14,6 +14,7 @@ import pytest
 
 from roadtwin_core import RoadtwinError
 from roadtwin_core.plugins import PluginManager
+from roadtwin_core.render import camera_matrix
 
 pytest.importorskip("open3d")
 
@@ -283,7 +284,7 @@ def curb_scene(scene, tmp_path_factory):
 
 
 def test_mask_road_points_projection():
-    K = rl.intrinsics((100.0, 100.0, 2.0, 1.0))
+    K = camera_matrix((100.0, 100.0, 2.0, 1.0))
     mask = np.zeros((3, 5), bool)
     mask[1, 3] = True
     pts = np.array([[0.01, 0.0, 1.0],    # u = 3, v = 1: road
