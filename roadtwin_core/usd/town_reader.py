@@ -60,6 +60,7 @@ class TownInstances:
     labels: np.ndarray        # (N,) class label of each instance's prototype
     positions: np.ndarray     # (N,3) world position of each instance's origin
     radii: np.ndarray         # (N,) plan radius about the origin that holds the instance (scaled prototype)
+    corners: np.ndarray | None = None   # (N,4,2) world plan corners of each instance's prototype bounding box
 
 
 @dataclass
@@ -200,6 +201,7 @@ def expand_instancer(prim, budget: FaceBudget, looks: bool, materials: dict) -> 
     place = prim.GetAttribute("roadtwin:prop:place")
     labels = np.full(len(idx), "prop", dtype=object)
     reach = np.zeros(len(idx))      # each instance's prototype: its farthest plan point from the origin
+    box = np.full((len(inst.GetPrototypesRel().GetTargets()), 4), np.nan)   # each prototype's plan box x0, y0, x1, y1
     out = []
     for k, target in enumerate(inst.GetPrototypesRel().GetTargets()):
         proto = prim.GetStage().GetPrimAtPath(target)
@@ -221,6 +223,7 @@ def expand_instancer(prim, budget: FaceBudget, looks: bool, materials: dict) -> 
                 v = v @ m[:3, :3] + m[3, :3]
             if len(v):
                 reach[idx == k] = np.maximum(reach[idx == k], np.hypot(v[:, 0], v[:, 1]).max())
+                box[k] = np.r_[np.fmin(box[k, :2], v[:, :2].min(0)), np.fmax(box[k, 2:], v[:, :2].max(0))]
             n = len(mine)
             world = np.einsum("vj,njk->nvk", v, mine[:, :3, :3]) + mine[:, None, 3, :3]
             faces = (f[None] + (np.arange(n) * len(v))[:, None, None]).reshape(-1, 3)
@@ -231,8 +234,13 @@ def expand_instancer(prim, budget: FaceBudget, looks: bool, materials: dict) -> 
             out.append(tm)
     positions = mats[:, 3, :3] if len(mats) else np.zeros((0, 3))
     scale = np.linalg.norm(mats[:, :2, :3], axis=2).max(axis=1) if len(mats) else np.zeros(0)
+    corners = np.zeros((len(idx), 4, 2))
+    if len(mats):
+        x0, y0, x1, y1 = np.nan_to_num(box[idx]).T           # (N,) each, prototype space (no mesh: its origin)
+        local = np.stack([np.stack([x0, y0], 1), np.stack([x1, y0], 1), np.stack([x1, y1], 1), np.stack([x0, y1], 1)], 1)
+        corners = np.einsum("nkj,njl->nkl", local, mats[:, :2, :2]) + mats[:, None, 3, :2]
     return out, TownInstances(str(prim.GetPath()), str(place.Get()) if place and place.HasValue() else "",
-                              labels.astype(str), positions, reach * scale)
+                              labels.astype(str), positions, reach * scale, corners)
 
 
 def _marking_type(prim, marking_types: dict[str, str]) -> str | None:

@@ -270,41 +270,51 @@ def test_auto_route_and_a_sweeps_speed_profile(town, tmp_path):
     assert {"D00021", "D00029"} <= set(ctx["footprints"]) < {d.id for d in ctx["town"].defects}   # the reachable ones
 
 
-def _standing_cars(stage: Path) -> list[tuple[np.ndarray, float]]:
-    """(XY, plan radius) of every instance of the props' lane vehicles, read with pxr: the
-    radius is the half-diagonal of its prototype's bounding box."""
-    from pxr import Usd, UsdGeom
+def _standing_cars(stage: Path):
+    """The plan outline (shapely) of every instance of the props' lane vehicles, read with pxr:
+    each prototype's bounding box, placed by its instance's transform."""
+    from pxr import Gf, Usd, UsdGeom
+    from shapely.geometry import Polygon
 
     st = Usd.Stage.Open(str(stage))
     pi = UsdGeom.PointInstancer(st.GetPrimAtPath("/Town/Props/LaneVehicles"))
-    protos = pi.GetPrototypesRel().GetTargets()
     cache = UsdGeom.BBoxCache(Usd.TimeCode.Default(), ["default", "render"])
-    half = []
-    for path in protos:
-        box = cache.ComputeUntransformedBound(st.GetPrimAtPath(path)).ComputeAlignedRange()
-        half.append(0.5 * np.hypot(*(np.array(box.GetMax()) - np.array(box.GetMin()))[:2]))
-    pos = np.array(pi.GetPositionsAttr().Get())
-    return [(p[:2], half[i]) for p, i in zip(pos, pi.GetProtoIndicesAttr().Get())]
+    boxes = [cache.ComputeUntransformedBound(st.GetPrimAtPath(p)).ComputeAlignedRange()
+             for p in pi.GetPrototypesRel().GetTargets()]
+    out = []
+    for xf, k in zip(pi.ComputeInstanceTransformsAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default()),
+                     pi.GetProtoIndicesAttr().Get()):
+        lo, hi = boxes[k].GetMin(), boxes[k].GetMax()
+        corners = [Gf.Matrix4d(xf).Transform(Gf.Vec3d(x, y, 0.0)) for x, y in
+                   ((lo[0], lo[1]), (hi[0], lo[1]), (hi[0], hi[1]), (lo[0], hi[1]))]
+        out.append(Polygon([(c[0], c[1]) for c in corners]))
+    return out
 
 
 def test_auto_route_keeps_clear_of_the_cars_standing_in_lanes(town):
     """The sample town's longest chain of lanes (320 m) has two cars of the props layer standing
-    in it; a 300 m ``--route auto`` drive keeps the body (1.8 m x 4.5 m about each route point)
-    clear of every such car."""
+    in it; a 300 m ``--route auto`` drive keeps the body (``body_width_m`` x ``body_length_m``
+    about each route point, along it) clear of every such car."""
+    from shapely.geometry import Polygon
+
     from roadtwin_core.apps.drive import DriveOptions, prepare_drive
 
     cars = _standing_cars(town)
     assert len(cars) >= 3
     ctx = prepare_drive(town, DriveOptions(route="auto", length_m=300.0, rig=RIG, sensors="imu"), pm=PluginManager())
-    route, car_body = ctx["route"], (ctx["vehicle"].body_width_m, ctx["vehicle"].body_length_m)
-    s = np.arange(0.0, route.length, 0.1)
-    p, t = route.at(s)
-    for c, r in cars:
-        d = c - p
-        along = np.abs((d * t).sum(1)) - car_body[1] / 2
-        across = np.abs(d[:, 0] * -t[:, 1] + d[:, 1] * t[:, 0]) - car_body[0] / 2
-        gap = np.hypot(np.maximum(along, 0), np.maximum(across, 0))
-        assert (gap > r).all(), (c, route.source)
+    route, w, length = ctx["route"], ctx["vehicle"].body_width_m, ctx["vehicle"].body_length_m
+    p, t = route.at(np.arange(0.0, route.length, 0.25))
+    n = np.column_stack([-t[:, 1], t[:, 0]])
+    bodies = [Polygon([c + a * length / 2 * ti + b * w / 2 * ni for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+              for c, ti, ni in zip(p, t, n)]
+    for car in cars:
+        assert min(b.distance(car) for b in bodies) > 0.0, (car.centroid, route.source)
+    # the reader's outlines (TownInstances.corners) are pxr's
+    from roadtwin_core.apps.drive.obstacles import lane_obstacles
+
+    mine = [Polygon(o.corners) for o in lane_obstacles(ctx["town"]) if o.where.startswith("/Town/Props/LaneVehicles ")]
+    assert len(mine) == len(cars)
+    assert all(a.symmetric_difference(b).area < 1e-6 * a.area for a, b in zip(mine, cars))
 
 
 # ------------------------------------------------------------------------------------ many drives

@@ -4,9 +4,10 @@ vehicles). The ego car is solid: ``--route auto`` drives a stretch clear of them
 given by lanes or a poses file that runs into one is refused with one line naming the instance
 (before, the drive went through the parked car until the renderer found its camera inside it).
 
-A standing instance blocks the route where its plan circle (``TownInstances.radii``) comes
-within half the body's width of the route polyline; it then blocks the arclengths where the
-body (its length centred on the route point) would overlap that circle.
+An instance is its prototype's plan bounding box, placed and turned as the instance is
+(``TownInstances.corners``). It blocks the route where the body, ``body_width_m`` wide and centred
+on the route, would overlap it sideways; then it blocks the arclengths its corners span, widened
+by half the body's length each way (the body is centred on the route point).
 """
 from __future__ import annotations
 
@@ -21,36 +22,42 @@ __all__ = ["Obstacle", "blocked_spans", "check_clear", "free_stretches", "lane_o
 
 @dataclass(frozen=True)
 class Obstacle:
-    xy: tuple[float, float]
-    radius_m: float
-    where: str          # "<instancer path> instance <i>"
+    corners: tuple[tuple[float, float], ...]   # plan corners (world XY) of the instance's box
+    where: str                                 # "<instancer path> instance <i>"
+
+    @property
+    def xy(self) -> tuple[float, float]:
+        c = np.asarray(self.corners).mean(0)
+        return float(c[0]), float(c[1])
 
 
 def lane_obstacles(town) -> list[Obstacle]:
     """Every instance of the town's instancers placed in the lanes."""
     out = []
     for inst in getattr(town, "instances", []):
-        if inst.place != "lane":
+        if inst.place != "lane" or inst.corners is None:
             continue
-        for i, (p, r) in enumerate(zip(np.asarray(inst.positions), np.asarray(inst.radii))):
-            out.append(Obstacle((float(p[0]), float(p[1])), float(r), f"{inst.path} instance {i}"))
+        for i, c in enumerate(np.asarray(inst.corners, dtype=np.float64)):
+            out.append(Obstacle(tuple(map(tuple, c)), f"{inst.path} instance {i}"))
     return out
+
+
+def _along_across(route, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Arclength (continued past the route's ends along its end tangents) and signed left offset."""
+    s, off = route.project(pts)
+    q, t = route.at(s)
+    return s + ((pts - q) * t).sum(1), off
 
 
 def blocked_spans(route, obstacles: list[Obstacle], body_width_m: float, body_length_m: float
                   ) -> list[tuple[float, float, Obstacle]]:
     """(first, last arclength blocked, obstacle) of each obstacle the body would touch on the route,
     in route order."""
-    if not obstacles:
-        return []
-    xy = np.array([o.xy for o in obstacles])
-    r = np.array([o.radius_m for o in obstacles])
-    s, _ = route.project(xy)
-    near, _ = route.at(s)
-    gap = np.linalg.norm(xy - near, axis=1)
-    hit = gap < r + body_width_m / 2
-    reach = r + body_length_m / 2
-    spans = [(float(s[k] - reach[k]), float(s[k] + reach[k]), obstacles[k]) for k in np.flatnonzero(hit)]
+    spans = []
+    for o in obstacles:
+        s, off = _along_across(route, np.asarray(o.corners, dtype=np.float64))
+        if off.min() < body_width_m / 2 and off.max() > -body_width_m / 2:
+            spans.append((float(s.min() - body_length_m / 2), float(s.max() + body_length_m / 2), o))
     return sorted(spans, key=lambda x: (x[0], x[2].where))
 
 
@@ -74,6 +81,6 @@ def check_clear(route, obstacles: list[Obstacle], body_width_m: float, body_leng
              if sp[1] >= 0.0 and sp[0] <= route.length]
     if spans:
         a, b, o = spans[0]
+        x, y = o.xy
         raise RoadtwinError(f"route ({route.source}) runs into {o.where}, which stands in the lane at "
-                            f"x = {o.xy[0]:.2f}, y = {o.xy[1]:.2f} (s = {max(a, 0.0):.1f} m): give lanes or a poses "
-                            f"file around it")
+                            f"x = {x:.2f}, y = {y:.2f} (s = {max(a, 0.0):.1f} m): give lanes or a poses file around it")
