@@ -39,7 +39,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 from roadtwin_core import RoadtwinError, SampledSurface, SurfaceModel, check_params, field, hookimpl
 from roadtwin_core.atomic import atomic_files
-from roadtwin_core.render.cameras import camera_matrix
+from roadtwin_core.render import camera_matrix
 from roadtwin_core.usd import apply_labels, new_stage, read_mesh, safe_prim_name, set_attrs, set_kind, write_mesh
 
 from .reconstruct import (apply, check_points, fuse_frames, ground_alignment, load_extrinsic, load_frame, load_mask,

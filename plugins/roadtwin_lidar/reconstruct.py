@@ -38,7 +38,7 @@ from scipy.spatial import Delaunay, cKDTree
 from scipy.spatial.transform import Rotation
 
 from roadtwin_core import RoadtwinError
-from roadtwin_core.render.cameras import camera_matrix
+from roadtwin_core.render import camera_matrix
 
 
 # ---------------------------------------------------------------------------- input

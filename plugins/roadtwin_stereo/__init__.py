@@ -45,7 +45,7 @@ import numpy as np
 
 from roadtwin_core import DefectLook, DefectModel, RoadtwinError, check_params, hookimpl
 from roadtwin_core.atomic import atomic_output_dir
-from roadtwin_core.render.cameras import camera_matrix
+from roadtwin_core.render import camera_matrix
 from roadtwin_core.usd import safe_prim_name, write_defect_asset
 
 from .fusion import FrameFusion, FusionOptions, PairEvidence, fused_residual, fused_sequence, pair_evidence
