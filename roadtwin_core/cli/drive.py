@@ -49,7 +49,7 @@ def drive(
     rrd: bool = typer.Option(True, "--rerun/--no-rerun", help="write drive.rrd"),
     compressed: bool = typer.Option(False, "--compressed", help="images as sensor_msgs/CompressedImage (JPEG)"),
     traffic: int = typer.Option(0, "--traffic", help="other vehicles on the lanes (kinematic: the cameras and LiDAR "
-                                "see them, the physics does not)"),
+                                "see them, the physics does not; those whose path would meet the ego's are left out)"),
     traffic_speed: float = typer.Option(30.0, "--traffic-speed", help="their speed (km/h)"),
     param: Optional[list[str]] = typer.Option(None, "--param", help=f"renderer {PARAM_HELP}"),
 ) -> None:

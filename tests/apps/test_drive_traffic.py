@@ -9,12 +9,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from roadtwin_core.apps.drive.traffic import Traffic, Vehicle, ray_boxes
+from roadtwin_core.apps.drive.traffic import PALETTE, Traffic, Vehicle, ray_boxes
 from roadtwin_core.apps.drive.world import World
 from roadtwin_core.render import Camera, Frame, Intrinsics, Lane, RenderParams, look_from
 
 pytest.importorskip("open3d")
 HALF = np.array([2.25, 0.9, 0.75])
+PALETTE_0 = PALETTE[0]
 
 
 def yawed(deg: float) -> np.ndarray:
@@ -96,3 +97,29 @@ def test_cameras_draw_the_car_in_front_of_the_road():
     assert frame.depth[v, u] == pytest.approx(z, rel=1e-3)
     assert frame.rgb[v, u, 0] > frame.rgb[v, u, 1] and frame.rgb[v, u, 0] != pytest.approx(0.3)
     assert frame.semantic[-1, u] == 1 and frame.depth[-1, u] < z   # the road just ahead of the camera
+
+
+def test_vehicles_that_would_drive_through_the_ego_are_left_out():
+    """Kinematic traffic neither brakes nor steers: on a straight road the ego plans 10 m/s for 20 s
+    (200 m). A car 40 m ahead in its lane at 5 m/s is caught after about 7 s; a car stopped at the
+    end of a lane that ends on the route (its centre 67.75 m in) is reached after about 6 s; both
+    are left out. A car 30 m ahead at the
+    ego's speed, and one in the next lane (3.5 m over) at any speed, never come near it: kept."""
+    from roadtwin_core.apps.drive.route import Route, constant_speed
+    from roadtwin_core.apps.drive.traffic import clear_of_ego
+
+    def lane(y, length=300.0, x0=0.0):
+        return Lane(f"y{y}_x{x0}", np.column_stack([np.linspace(x0, x0 + length, 31), np.full(31, y)]))
+
+    route = Route(np.array([[0.0, 0.0], [200.0, 0.0]]), "test")
+    cars = [Vehicle(lane(0.0), 40.0, 5.0, PALETTE_0), Vehicle(lane(0.0, 60.0, x0=10.0), 60.0, 0.0, PALETTE_0),
+            Vehicle(lane(0.0), 30.0, 10.0, PALETTE_0), Vehicle(lane(3.5), 0.0, 25.0, PALETTE_0)]
+    kept, out = clear_of_ego(Traffic(cars, lambda xy: 0.0), route, constant_speed(36.0), (1.8, 4.5))
+    assert out == [0, 1] and kept.vehicles == cars[2:]
+    # the ego plan and the kept cars, sampled independently: always more than 0.5 m apart bumper to bumper
+    for t in np.arange(0.0, 20.0, 0.01):
+        ego_x = 10.0 * t
+        for c, _, half in kept.boxes(t):
+            gap_along = abs(c[0] - ego_x) - half[0] - 2.25
+            gap_across = abs(c[1]) - half[1] - 0.9
+            assert max(gap_along, gap_across) > 0.5

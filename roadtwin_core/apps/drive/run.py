@@ -21,6 +21,7 @@ from ...errors import RoadtwinError
 from ...params import apply_params
 from ...plugins import get_plugin_manager
 from ...render import RenderParams, build_render_mesh, stage_lanes
+from ...render.lane_chains import chain_lanes
 from ...usd.town_reader import load_town
 from ...vehicle import RoadMesh, SimParams, VehicleParams, load_full_vehicle
 from ...vehicle.roads import Occupancy
@@ -31,7 +32,7 @@ from .obstacles import check_clear, lane_obstacles
 from .rig import load_rig, mount, select
 from .route import build_route, check_on_road, constant_speed, read_recommendations, speed_profile, wheel_hits
 from .rrd import RrdWriter
-from .traffic import place_traffic
+from .traffic import clear_of_ego, place_traffic
 from .world import World
 
 __all__ = ["DriveOptions", "run_drive", "SensorState"]
@@ -44,7 +45,8 @@ class DriveOptions:
     file and physics backend, the rig file and which of its sensors, the renderer (and its
     ``--param`` values) for the cameras, which outputs; ``dt_s`` the physics step, ``truth_rate_hz``
     the rate of the ground-truth pose (``/tf``, ``/ground_truth/odom``, rerun); ``traffic`` other
-    vehicles on the lanes at ``traffic_speed_kmh`` (kinematic: seen, not felt; :mod:`.traffic`)."""
+    vehicles on the lanes at ``traffic_speed_kmh`` (kinematic: seen, not felt; :mod:`.traffic`),
+    less those whose path would meet the ego's planned one (``traffic_left_out`` in the summary)."""
 
     route: str = "auto"
     length_m: float | None = 100.0
@@ -183,11 +185,17 @@ def prepare_drive(stage: Path, opt: DriveOptions, pm=None, loaded: dict | None =
     world = loaded.get("world")
     if world is None or world.renderer is not renderer or world.source_params != rparams:
         world = loaded["world"] = World(loaded["render_mesh"], renderer, rparams)
-    world.set_traffic(place_traffic(opt.traffic, loaded["lanes"], route, opt.traffic_speed_kmh / 3.6, world.ground_z)
-                      if opt.traffic else None)
+    traffic, left_out = None, []
+    if opt.traffic:     # along whole roads (a segment's lane is 25 m), none that would drive through the ego
+        if "traffic_lanes" not in loaded:
+            loaded["traffic_lanes"] = chain_lanes(loaded["lanes"])
+        traffic, left_out = clear_of_ego(place_traffic(opt.traffic, loaded["traffic_lanes"], route,
+                                                       opt.traffic_speed_kmh / 3.6, world.ground_z),
+                                         route, profile, body, opt.duration_s)
+    world.set_traffic(traffic)
     return {"town": town, "road": road, "footprints": footprints, "route": route, "profile": profile, "hits": hits,
             "vehicle": vehicle, "sensors": sensors, "backend": backend, "sim": sim, "rig": rig_name,
-            "world": world, "load_s": time.perf_counter() - t0}
+            "world": world, "traffic_left_out": len(left_out), "load_s": time.perf_counter() - t0}
 
 
 def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None, loaded: dict | None = None) -> dict:
@@ -276,6 +284,7 @@ def run_drive(stage: Path, out: Path, opt: DriveOptions, pm=None, progress=None,
                    "traffic": [{"instance": i, "lane": v.lane.id, "s0_m": v.s0, "speed_kmh": v.speed_mps * 3.6}
                                for i, v in zip(getattr(world, "vehicle_instances", []),
                                                world.traffic.vehicles if world.traffic else [])],
+                   "traffic_left_out": ctx["traffic_left_out"],
                    "contacts": len(events), "defects_in_wheel_tracks": [h["id"] for h in ctx["hits"]],
                    "instances": {str(k): v for k, v in world.instances.items()},
                    "classes": world.class_names,

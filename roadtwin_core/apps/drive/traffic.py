@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Traffic", "place_traffic", "ray_boxes"]
+__all__ = ["Traffic", "clear_of_ego", "place_traffic", "ray_boxes"]
 
 CAR_SIZE_M = (4.5, 1.8, 1.5)           # length, width, height
 PALETTE = ((0.55, 0.05, 0.05), (0.05, 0.12, 0.45), (0.7, 0.7, 0.72), (0.08, 0.08, 0.08), (0.9, 0.9, 0.88))
@@ -77,6 +77,51 @@ def place_traffic(n: int, lanes: list, route, speed_mps: float, ground, clear_m:
             if len(vehicles) < n:
                 vehicles.append(Vehicle(lane, s0, speed_mps, PALETTE[len(vehicles) % len(PALETTE)]))
     return Traffic(vehicles, ground)
+
+
+def _ego_plan(route, profile, t_end: float | None, step_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Times and the ego's arc lengths at them along the route, from its speed profile (the
+    plan the speed controller follows), to the route's end or ``t_end``."""
+    t_knots, s_knots = [0.0], [0.0]
+    for a, b, v in profile.pieces(route.length):
+        t_knots.append(t_knots[-1] + (b - a) / v)
+        s_knots.append(b)
+    end = t_knots[-1] if t_end is None else min(t_end, t_knots[-1])
+    t = np.arange(0.0, end + step_s / 2, step_s)
+    return t, np.interp(t, t_knots, s_knots)
+
+
+def _boxes_overlap(ca, ta, ha, cb, tb, hb) -> np.ndarray:
+    """Whether oriented plan rectangles overlap (separating axes), elementwise over rows: centres
+    (N,2), unit forward directions (N,2), half extents (length, width)."""
+    na, nb = np.column_stack([-ta[:, 1], ta[:, 0]]), np.column_stack([-tb[:, 1], tb[:, 0]])
+    d = cb - ca
+    hit = np.ones(len(ca), bool)
+    for u in (ta, na, tb, nb):
+        ra = ha[0] * np.abs((ta * u).sum(1)) + ha[1] * np.abs((na * u).sum(1))
+        rb = hb[0] * np.abs((tb * u).sum(1)) + hb[1] * np.abs((nb * u).sum(1))
+        hit &= np.abs((d * u).sum(1)) <= ra + rb
+    return hit
+
+
+def clear_of_ego(traffic: Traffic, route, profile, body_m: tuple[float, float], t_end: float | None = None,
+                 step_s: float = 0.05, margin_m: float = 0.5) -> tuple[Traffic, list[int]]:
+    """The traffic without the vehicles whose box would come within ``margin_m`` of the ego's
+    body (``body_m``: width, length) on its planned path: they are kinematic, they neither brake
+    nor steer, so one in the ego's lane at another speed, or stopped at its lane's end on the
+    route, would drive through the ego (the cameras inside it). Returns it and the indices left
+    out."""
+    t, s = _ego_plan(route, profile, t_end, step_s)
+    p, tan = route.at(s)
+    ego_half = np.array([body_m[1] / 2 + margin_m, body_m[0] / 2 + margin_m])
+    car_half = traffic.size[:2] / 2
+    kept, out = [], []
+    for k, v in enumerate(traffic.vehicles):
+        sv = np.minimum(v.s0 + v.speed_mps * t, v.lane.length - traffic.size[0] / 2)
+        yaw = v.lane.heading(sv)
+        hit = _boxes_overlap(p, tan, ego_half, v.lane.at(sv), np.column_stack([np.cos(yaw), np.sin(yaw)]), car_half)
+        (out if hit.any() else kept).append(k)
+    return Traffic([traffic.vehicles[k] for k in kept], traffic.ground, traffic.size), out
 
 
 def ray_boxes(origins: np.ndarray, dirs: np.ndarray, boxes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
