@@ -40,6 +40,7 @@ from .view_draws import TRACK_HALF_M, WHEELBASE_HALF_M, clear_of, lane_spots, ro
 
 TARGET_TYPES = ("pothole", "crack")
 DEFECT_DISTANCE_M = (5.0, 25.0)                # an aimed defect's distance ahead of the camera, by default
+DEAD_END_MARGIN_M = 25.0                       # background views keep this far back from a road's end
 
 
 @dataclass(frozen=True)
@@ -173,7 +174,8 @@ def sample_views(lanes: Sequence[Lane], defects: DefectTargets, ground: GroundFn
                  start: int = 0, max_tries: int = 60, keep_out: KeepOut = NO_KEEP_OUT) -> list[View]:
     """Frames ``start .. start + n - 1``: a ``share`` of them aimed at a random pothole or crack
     (``target_types``) placed ``near..far`` m ahead inside the field of view, the rest uniform
-    along the lanes (``background="uniform"``; ``"clear"`` redraws them until no target-type
+    along the lanes, short of the last ``DEAD_END_MARGIN_M`` of a lane with no road ahead
+    (:func:`dead_end_margins`) (``background="uniform"``; ``"clear"`` redraws them until no target-type
     defect is in view, falling back to the last draw after ``max_tries``). Targets are defects
     within ``max_lateral_m`` of a lane centreline (own lane, the opposing one, the shoulders);
     each is seen from every lane it lies near, in that lane's travel direction. No camera stands
@@ -263,6 +265,27 @@ class _Frame:
     done: bool = False
 
 
+def dead_end_margins(lanes: Sequence[Lane], margin_m: float = DEAD_END_MARGIN_M, join_m: float = 25.0,
+                     max_turn_deg: float = 135.0) -> np.ndarray:
+    """Per lane, the last metres a background view keeps off: ``margin_m`` where the lane ends
+    with no road ahead (no other lane starts within ``join_m`` of its end, turning less than
+    ``max_turn_deg``: a highway's end, where the opposite lane starts heading back), else 0 (a
+    junction). A survey camera there would look past the road's end into the verge. Never more
+    than leaves a metre to draw from."""
+    starts = np.array([l.points[0] for l in lanes])
+    start_heading = np.array([float(l.heading(np.array([min(1.0, l.length / 2)]))[0]) for l in lanes])
+    out = np.zeros(len(lanes))
+    for i, lane in enumerate(lanes):
+        end = lane.points[-1]
+        h = float(lane.heading(np.array([max(lane.length - 1.0, lane.length / 2)]))[0])
+        turn = np.degrees(np.abs((start_heading - h + math.pi) % (2 * math.pi) - math.pi))
+        near = (np.linalg.norm(starts - end, axis=1) < join_m) & (turn < max_turn_deg)
+        near[i] = False
+        if not near.any():
+            out[i] = min(margin_m, max(0.0, lane.length - 2 * WHEELBASE_HALF_M - 1.0))
+    return out
+
+
 @dataclass
 class _ViewDrawer:
     """The frames' random draws, in a fixed order per frame's rng: the spot (lane and arc length),
@@ -284,6 +307,7 @@ class _ViewDrawer:
     def __post_init__(self):
         self.lengths = np.array([l.length for l in self.lanes])
         self.lane_p = self.lengths / self.lengths.sum()
+        self.end_margin = dead_end_margins(self.lanes)
 
     def choose(self, frames: list[_Frame]) -> None:
         """Sets each frame's ``chosen``: (cam_to_world, jitter, lane index, s, target id or None, seen mask)."""
@@ -312,7 +336,7 @@ class _ViewDrawer:
                 return None
         else:
             lane_i = int(rng.choice(len(self.lanes), p=self.lane_p))
-            s = float(rng.uniform(WHEELBASE_HALF_M, self.lanes[lane_i].length - WHEELBASE_HALF_M))
+            s = float(rng.uniform(WHEELBASE_HALF_M, self.lanes[lane_i].length - WHEELBASE_HALF_M - self.end_margin[lane_i]))
         return f, lane_i, s, rng.uniform(-self.jitter.lateral_m, self.jitter.lateral_m), c
 
     def _try(self, spots: list[tuple]) -> None:

@@ -234,3 +234,25 @@ def test_ego_lane_on_a_curve_follows_the_circle():
     decided = ok & (minimum_filter(truth, 3) == maximum_filter(truth, 3)) & (minimum_filter(ok, 3) == 1)
     assert truth[decided].sum() > 2000 and (~truth[decided]).sum() > 2000
     assert np.array_equal(mask[decided], truth[decided])
+
+
+def _straight(name, x0, y0, x1, y1, n=101) -> Lane:
+    return Lane(name, np.column_stack([np.linspace(x0, x1, n), np.linspace(y0, y1, n)]))
+
+
+def test_background_views_keep_off_a_roads_end_but_not_a_junction():
+    """A 400 m two-way road that ends (a highway's ends: each lane's end is where the opposite
+    lane starts, heading back): no background view stands within 25 m of a lane's end, where the
+    camera would look past the road into the verge. Where another lane goes on (straight through
+    a junction, or turning into the crossing road), views come up to the end as before."""
+    empty = DefectTargets([], [], np.zeros((0, 2)))
+    road = [_straight("east", 0, 0, 400, 0), _straight("west", 400, 3.5, 0, 3.5)]
+    views = sample_views(road, empty, flat, 400, share=0.0, seed=3, background="uniform")
+    ends = {"east": np.array([400.0, 0.0]), "west": np.array([0.0, 3.5])}
+    to_end = np.array([np.linalg.norm(v.cam_to_world[:2, 3] - ends[v.lane_id]) for v in views])
+    assert to_end.min() >= 25.0 - 1.0            # the jitter moves a camera by a metre at most sideways
+    for follower in (_straight("on", 205, 0, 405, 0), _straight("turn", 206, 5, 206, 205)):
+        lanes = [_straight("east", 0, 0, 200, 0), follower]
+        views = sample_views(lanes, empty, flat, 400, share=0.0, seed=3, background="uniform")
+        s = np.array([v.s_m for v in views if v.lane_id == "east"])
+        assert (s > 200.0 - 25.0).sum() >= 10    # ~25 expected in the last 25 m of 'east'
