@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 from roadtwin_core.apps.drive import DriveOptions, run_drive  # noqa: E402
 from roadtwin_core.apps.drive.rig import load_rig  # noqa: E402
 from roadtwin_core.render import stage_lanes  # noqa: E402
+from roadtwin_core.render.lane_chains import chain_lanes  # noqa: E402
 
 LANE = "avenue1_02_1"
 RIG = """name = "figure"
@@ -135,8 +136,9 @@ def _map(ax, stage: Path, traj, events, traffic: list, t: float) -> None:
     lanes = {lane.id: lane for lane in stage_lanes(stage)}
     for lane in lanes.values():
         ax.plot(lane.points[:, 0], lane.points[:, 1], color="0.7", lw=0.8)
+    roads = {lane.id: lane for lane in chain_lanes(list(lanes.values()))}     # traffic drives whole roads
     for k, v in enumerate(traffic):
-        lane = lanes[v["lane"]]
+        lane = roads[v["lane"]]
         xy = lane.at([min(v["s0_m"] + v["speed_kmh"] / 3.6 * t, lane.length)])[0]
         ax.plot(*xy, "s", color="#00c8ff", ms=7, mec="k", label=f"other vehicles (t = {t:.2f} s)" if k == 0 else None)
     seen = set()

@@ -57,9 +57,11 @@ class Traffic:
         return out
 
 
-def place_traffic(n: int, lanes: list, route, speed_mps: float, ground, clear_m: float = 15.0) -> Traffic:
-    """``n`` vehicles on the lanes nearest the route's middle, in turn, evenly along each lane,
-    none within ``clear_m`` of the ego's start."""
+def place_traffic(n: int, lanes: list, route, speed_mps: float, ground, clear_m: float = 15.0,
+                  spacing_m: float = 20.0) -> Traffic:
+    """``n`` vehicles on the lanes nearest the route's middle, in turn, ``spacing_m`` apart about
+    each lane's point nearest that middle (where the ego's sensors see them); one that would stand
+    within ``clear_m`` of the ego's start moves on along its lane, ``spacing_m`` at a time."""
     mid = route.at(np.array([route.length / 2]))[0][0]
     start = route.at(np.array([0.0]))[0][0]
 
@@ -70,11 +72,14 @@ def place_traffic(n: int, lanes: list, route, speed_mps: float, ground, clear_m:
     vehicles: list[Vehicle] = []
     per_lane = -(-n // max(len(order), 1)) if order else 0
     for lane in order:
+        s_mid = float(np.interp(np.argmin(np.linalg.norm(lane.points - mid, axis=1)), np.arange(len(lane.points)),
+                                np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(lane.points, axis=0), axis=1))])))
         for k in range(per_lane):
-            s0 = lane.length * (k + 0.5) / per_lane
-            if np.linalg.norm(lane.at([s0])[0] - start) < clear_m:
-                continue
-            if len(vehicles) < n:
+            want = s_mid + (k - (per_lane - 1) / 2) * spacing_m
+            s0 = next((float(x) for x in want + spacing_m * np.arange(4)
+                       if CAR_SIZE_M[0] <= x <= lane.length - CAR_SIZE_M[0]
+                       and np.linalg.norm(lane.at([x])[0] - start) >= clear_m), None)
+            if s0 is not None and len(vehicles) < n:
                 vehicles.append(Vehicle(lane, s0, speed_mps, PALETTE[len(vehicles) % len(PALETTE)]))
     return Traffic(vehicles, ground)
 
