@@ -12,6 +12,7 @@ import numpy as np
 
 from roadtwin_core.errors import RoadtwinError
 
+from _perception_arms import Config
 from _perception_data import CLASSES
 
 REPORTED = ("pothole", "crack", "ego_lane", "background")
@@ -64,9 +65,9 @@ def bootstrap_gain(ia, ua, ib, ub, n_boot: int = 2000, seed: int = 0, level: flo
 TWO_DOMAIN_ARMS = ("pretrain", "mixed")     # the arms --domain-bn changes; the others are the same runs without it
 
 
-# Config keys added after runs were recorded, with the behaviour those runs had: a run JSON
-# written before ``bn_stats`` existed was evaluated with its trained statistics, and so on.
-ADDED_KEYS = {"style": None, "bn_stats": "train", "domain_bn": False, "pseudo_keep": None}
+# Config keys added after runs were recorded, at their defaults: the behaviour those runs had (a run
+# JSON written before ``bn_stats`` existed was evaluated with its trained statistics, and so on).
+ADDED_KEYS = {k: getattr(Config(), k) for k in ("style", "bn_stats", "domain_bn", "pseudo_keep")}
 
 
 def _comparable(run: dict) -> dict:

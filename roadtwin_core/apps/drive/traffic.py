@@ -72,8 +72,7 @@ def place_traffic(n: int, lanes: list, route, speed_mps: float, ground, clear_m:
     vehicles: list[Vehicle] = []
     per_lane = -(-n // max(len(order), 1)) if order else 0
     for lane in order:
-        s_mid = float(np.interp(np.argmin(np.linalg.norm(lane.points - mid, axis=1)), np.arange(len(lane.points)),
-                                np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(lane.points, axis=0), axis=1))])))
+        s_mid = float(lane.cum[np.argmin(np.linalg.norm(lane.points - mid, axis=1))])   # its vertex nearest it
         for k in range(per_lane):
             want = s_mid + (k - (per_lane - 1) / 2) * spacing_m
             s0 = next((float(x) for x in want + spacing_m * np.arange(4)
