@@ -1,6 +1,12 @@
 """Batches of frames finished on the device: camera model and labels (``post_kernels``), one
 copy to the host a batch. What ``WarpRenderer.render_finished`` runs; numpy + warp (+ cv2 for
-the optics blur's Gaussian weights)."""
+the optics blur's Gaussian weights).
+
+Why the batch's small inputs (ego lanes, blur weights, sensors, material looks) go up in one
+copy each (:meth:`DeviceFinisher.upload`) and the results come back through pinned buffers
+(:meth:`DeviceFinisher.launch_finish`, :meth:`DeviceFinisher.collect`): a copy from pageable
+host memory waits for every kernel queued before it, so one small upload a frame made the host
+wait for the GPU at every frame, and launching and rendering never overlapped."""
 from __future__ import annotations
 
 import math
@@ -10,7 +16,10 @@ import warp as wp
 
 from . import post_kernels as pk
 
+__all__ = ["DeviceFinisher", "gaussian_weights", "load_post_kernels", "make_sensor", "noise_seed32"]
+
 LOG_K_RANGE = (math.log(1e-4), math.log(1e4))     # auto-exposure scales searched (as the CPU's bisection)
+STAGED_TYPES = {"lane": wp.vec2, "blur_weights": float, "remap": wp.int32, "scale": wp.vec3}
 
 
 def load_post_kernels(device) -> None:
@@ -68,6 +77,10 @@ class DeviceFinisher:
         self.identity_lut = wp.array(np.arange(256, dtype=np.uint8), dtype=wp.uint8, device=self.device)
         self.no_lane = wp.zeros(2, dtype=wp.vec2, device=self.device)
         self._luts: dict = {}
+        self._staged: list = []
+        self._sensors = None
+        self._host: dict | None = None
+        self._queued = 0
 
     def frame(self, slot: int, cam, gb, sensor: pk.Sensor, blur_px: float, labels: dict) -> None:
         """Frame ``slot`` of the batch from its G-buffer ``gb`` (shaded): the image up to the
@@ -77,7 +90,9 @@ class DeviceFinisher:
         wp.launch(pk.motion_blur_kernel, dim=n, device=dev, inputs=[gb.rgb, gb.depth, cam, sensor.travel, slot],
                   outputs=[self.lin])
         if blur_px > 0:
-            w = wp.array(gaussian_weights(blur_px), dtype=float, device=dev)
+            w = labels.get("blur_weights")      # staged by upload(), or made here
+            if w is None:
+                w = wp.array(gaussian_weights(blur_px), dtype=float, device=dev)
             view = self.lin[slot * n:(slot + 1) * n]
             r = (w.shape[0] - 1) // 2
             wp.launch(pk.gauss_kernel, dim=n, device=dev, inputs=[view, w, r, self.width, self.height, 1],
@@ -86,8 +101,12 @@ class DeviceFinisher:
                       outputs=[view])
         lane = labels.get("lane")
         lut = labels.get("plain") is not None
-        lane_arr = self.no_lane if lane is None else wp.array(np.asarray(lane, np.float32), dtype=wp.vec2, device=dev)
-        n_lane = 0 if lane is None else len(lane)
+        if lane is None:
+            lane_arr, n_lane = self.no_lane, 0
+        elif isinstance(lane, wp.array):
+            lane_arr, n_lane = lane, lane.shape[0]
+        else:
+            lane_arr, n_lane = wp.array(np.asarray(lane, np.float32), dtype=wp.vec2, device=dev), len(lane)
         plain, inside = self._tables(labels["plain"], labels["inside"]) if lut else (self.identity_lut,) * 2
         wp.launch(pk.labels_kernel, dim=n, device=dev,
                   inputs=[cam, gb.dist, gb.face, gb.cls, float(labels["label_distance"]), int(labels["background"]),
@@ -103,11 +122,38 @@ class DeviceFinisher:
                                     for k in key)
         return self._luts[key]
 
-    def finish(self, cam, sensors: list) -> dict:
-        """Auto-exposure, noise and tone mapping of the batch's ``len(sensors)`` frames; the
-        host arrays: rgb8 (B, H, W, 3) uint8, labels (B, H, W) uint8, depth, instance."""
+    def upload(self, frames: list[dict]) -> list[dict]:
+        """The batch's small inputs on the device, one copy a kind. ``frames``: per frame a dict
+        with ``lane`` (local XY or None), ``blur_px``, ``sensor``, ``remap`` and ``scale`` (the
+        material look). Returns per frame its device views: ``lane`` and ``blur_weights`` (None
+        where it has none), ``remap``, ``scale``; the sensors wait for :meth:`launch_finish`."""
+        host = {"lane": [None if f.get("lane") is None else np.asarray(f["lane"], np.float32).reshape(-1, 2)
+                         for f in frames],
+                "blur_weights": [gaussian_weights(f["blur_px"]) if f.get("blur_px", 0.0) > 0 else None
+                                 for f in frames],
+                "remap": [np.asarray(f["remap"], np.int32).reshape(-1) for f in frames],
+                "scale": [np.asarray(f["scale"], np.float32).reshape(-1, 3) for f in frames]}
+        views: list[dict] = [{} for _ in frames]
+        self._staged = []                   # kept until the next upload (collect() has waited for them by then)
+        for key, parts in host.items():
+            present = [a for a in parts if a is not None]
+            whole = wp.array(np.concatenate(present), dtype=STAGED_TYPES[key], device=self.device) if present else None
+            self._staged.append(whole)
+            at = 0
+            for v, a in zip(views, parts):
+                v[key] = None if a is None else whole[at:at + len(a)]
+                at += 0 if a is None else len(a)
+        self._sensors = wp.array([f["sensor"] for f in frames], dtype=pk.Sensor, device=self.device)
+        return views
+
+    def launch_finish(self, cam, sensors: list) -> None:
+        """Queue auto-exposure, noise and tone mapping of the batch's ``len(sensors)`` frames and
+        the copies back (``sensors`` uploaded by :meth:`upload` when it staged this batch)."""
         b, n, dev = len(sensors), self.width * self.height, self.device
-        sens = wp.array(sensors, dtype=pk.Sensor, device=dev)
+        sens = self._sensors
+        if sens is None or sens.shape[0] != b:
+            sens = wp.array(sensors, dtype=pk.Sensor, device=dev)
+        self._sensors = None
         self.lo.fill_(LOG_K_RANGE[0])
         self.hi.fill_(LOG_K_RANGE[1])
         if any(s.target > 0 for s in sensors):
@@ -118,9 +164,31 @@ class DeviceFinisher:
                           outputs=[self.lo, self.hi])
         wp.launch(pk.sensor_kernel, dim=b * n, device=dev, inputs=[self.lin, cam, sens, self.lo, self.hi],
                   outputs=[self.rgb8])
-        h, w = self.height, self.width
-        return {"rgb8": self.rgb8.numpy()[:b * n * 3].reshape(b, h, w, 3).copy(),
-                "labels": self.labels.numpy()[:b * n].reshape(b, h, w).copy(),
-                "depth": self.depth.numpy()[:b * n].reshape(b, h, w).copy(),
-                "instance": self.inst.numpy()[:b * n].reshape(b, h, w).copy(),
-                "exposure_scale": np.exp(0.5 * (self.lo.numpy()[:b] + self.hi.numpy()[:b]))}
+        self._queued = b
+        if dev.is_cuda:                             # into pinned host memory: the copies run without the host
+            if self._host is None:
+                self._host = {k: wp.empty_like(getattr(self, k), device="cpu", pinned=True)
+                              for k in ("rgb8", "labels", "depth", "inst", "lo", "hi")}
+            for k, host in self._host.items():
+                wp.copy(host, getattr(self, k))
+
+    def collect(self) -> dict:
+        """The batch queued by :meth:`launch_finish`, once the device is done: rgb8 (B, H, W, 3)
+        uint8, labels (B, H, W) uint8, depth, instance, exposure_scale (host copies)."""
+        b, n, h, w = self._queued, self.width * self.height, self.height, self.width
+        if self.device.is_cuda:
+            wp.synchronize_device(self.device)
+            src = {k: v.numpy() for k, v in self._host.items()}
+        else:
+            src = {k: getattr(self, k).numpy() for k in ("rgb8", "labels", "depth", "inst", "lo", "hi")}
+        return {"rgb8": src["rgb8"][:b * n * 3].reshape(b, h, w, 3).copy(),
+                "labels": src["labels"][:b * n].reshape(b, h, w).copy(),
+                "depth": src["depth"][:b * n].reshape(b, h, w).copy(),
+                "instance": src["inst"][:b * n].reshape(b, h, w).copy(),
+                "exposure_scale": np.exp(0.5 * (src["lo"][:b] + src["hi"][:b]))}
+
+    def finish(self, cam, sensors: list) -> dict:
+        """Auto-exposure, noise and tone mapping of the batch's ``len(sensors)`` frames; the
+        host arrays (:meth:`collect`)."""
+        self.launch_finish(cam, sensors)
+        return self.collect()

@@ -36,7 +36,7 @@ import numpy as np
 import warp as wp
 
 from .textures import (GREY, WRAP_MODES, Textures, build_textures, mip_levels,  # noqa: F401 (re-exported)
-                       sample_map, set_material_look)
+                       checked_material_look, sample_map, set_material_look)
 
 # nothing here is differentiated: no backward (adjoint) code, which cost most of the compile time
 wp.set_module_options({"enable_backward": False})

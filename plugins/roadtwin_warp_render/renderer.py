@@ -184,8 +184,11 @@ class WarpRenderer:
         or None: plain tone mapping), ``labels`` (label_distance, and with a class map its
         ``plain`` / ``inside`` tables, the ego ``lane`` (world XY), ``half_width``, ``s_cam``).
         Yields per request: rgb8, labels (uint8), depth, instance, exposure_scale. Same seed,
-        same device: same bytes; other bytes than the CPU's camera model (other random numbers)."""
-        from .post import DeviceFinisher, make_sensor
+        same device: same bytes; other bytes than the CPU's camera model (other random numbers).
+        Every camera is checked before the first frame renders. The next batch is queued on the
+        device before this one's frames are handed out, so the GPU renders while the caller
+        (and the host's share of the next batch) runs."""
+        from .post import DeviceFinisher
 
         params = check_params(params or RenderParams(), "renderer warp")
         prepared = self.prepare(scene, params)
@@ -193,28 +196,58 @@ class WarpRenderer:
         if not requests:
             return
         k = requests[0]["camera"].intrinsics
+        cams = [r["camera"] for r in requests]
+        if any(isinstance(c, StereoCamera) or c.intrinsics != k for c in cams):
+            raise RoadtwinError("renderer warp: frames finished on the device are mono, of one size")
+        self.check_cameras(prepared, cams, params)
         finisher = DeviceFinisher(k.width, k.height, batch, prepared.device)
-        for start in range(0, len(requests), batch):
-            part = requests[start:start + batch]
-            cams = [r["camera"] for r in part]
-            if any(isinstance(c, StereoCamera) or c.intrinsics != k for c in cams):
-                raise RoadtwinError("renderer warp: frames finished on the device are mono, of one size")
-            self.check_cameras(prepared, cams, params)
-            sensors, c = [], None
-            for slot, r in enumerate(part):
-                p = dataclasses.replace(check_params(r["params"], "renderer warp"), shade=True)
-                light, material_look = self._light_and_look(prepared, p, r.get("look"))
-                _rc().set_material_look(prepared.rs.textures, *material_look, prepared.rs.device)
-                c, gb = self._view(prepared, r["camera"], p, light, slot=0)
-                labels = {"background": prepared.rs.background, "label_distance": p.label_distance_m, **r["labels"]}
-                if labels.get("lane") is not None:
-                    labels["lane"] = np.asarray(labels["lane"], np.float64)[:, :2] - prepared.origin[:2]
-                effects = r.get("effects")
-                sensors.append(make_sensor(effects, r["camera"]))
-                finisher.frame(slot, c, gb, sensors[-1], float(getattr(effects, "blur_px", 0.0) or 0.0), labels)
-            out = finisher.finish(c, sensors)
+        parts = [requests[s:s + batch] for s in range(0, len(requests), batch)]
+        self._queue_batch(prepared, finisher, self._batch_inputs(prepared, parts[0]))
+        staged = self._batch_inputs(prepared, parts[1]) if len(parts) > 1 else None
+        for i, part in enumerate(parts):
+            out = finisher.collect()
+            if staged is not None:
+                self._queue_batch(prepared, finisher, staged)
+            staged = self._batch_inputs(prepared, parts[i + 2]) if i + 2 < len(parts) else None
             for b in range(len(part)):
                 yield {key: value[b] for key, value in out.items()}
+
+    def _batch_inputs(self, prepared: PreparedScene, part: list[dict]) -> list[dict]:
+        """The host's share of a batch's frames, before anything goes to the device: the camera,
+        light, material look, sensor and labels of each."""
+        from .post import make_sensor
+
+        rc = _rc()
+        n_materials = prepared.rs.textures.mat_diffuse.shape[0]
+        frames = []
+        for r in part:
+            p = dataclasses.replace(check_params(r["params"], "renderer warp"), shade=True)
+            light, (remap, scale) = self._light_and_look(prepared, p, r.get("look"))
+            try:
+                remap, scale = rc.checked_material_look(n_materials, remap, scale)
+            except ValueError as exc:
+                raise RoadtwinError(f"renderer warp: {exc}") from None
+            labels = {"background": prepared.rs.background, "label_distance": p.label_distance_m, **r["labels"]}
+            lane = labels.pop("lane", None)
+            effects = r.get("effects")
+            frames.append({"camera": r["camera"], "params": p, "light": light, "remap": remap, "scale": scale,
+                           "labels": labels, "sensor": make_sensor(effects, r["camera"]),
+                           "blur_px": float(getattr(effects, "blur_px", 0.0) or 0.0),
+                           "lane": None if lane is None else np.asarray(lane, np.float64)[:, :2] - prepared.origin[:2]})
+        return frames
+
+    def _queue_batch(self, prepared: PreparedScene, finisher, frames: list[dict]) -> None:
+        """A batch's small inputs up in one copy a kind, then every kernel of it and the copies
+        back queued on the device (nothing here waits for the device)."""
+        views = finisher.upload(frames)
+        tex = prepared.rs.textures
+        c = None
+        for slot, (f, v) in enumerate(zip(frames, views)):
+            tex.mat_remap, tex.mat_scale = v["remap"], v["scale"]
+            c, gb = self._view(prepared, f["camera"], f["params"], f["light"], slot=0)
+            finisher.frame(slot, c, gb, f["sensor"], f["blur_px"],
+                           {**f["labels"], "lane": v["lane"], "blur_weights": v["blur_weights"]})
+        finisher.launch_finish(c, [f["sensor"] for f in frames])
 
     def _frames(self, prepared, cameras, params, light, material_look) -> Iterator[Frame]:
         try:

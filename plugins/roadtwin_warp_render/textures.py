@@ -259,12 +259,18 @@ def build_textures(materials: list[dict], device) -> tuple[Textures, int]:
     return tex, total
 
 
-def set_material_look(tex: Textures, remap: np.ndarray, scale: np.ndarray, device) -> None:
-    """Per-frame material remap (id -> id sampled) and diffuse multipliers (n_materials, 3)."""
+def checked_material_look(n: int, remap, scale) -> tuple[np.ndarray, np.ndarray]:
+    """A per-frame material look for ``n`` materials as the kernels read it: remap (id -> id
+    sampled, int32) and diffuse multipliers ((n, 3) float32); ValueError when it does not fit."""
     remap = np.asarray(remap, np.int32).reshape(-1)
     scale = np.asarray(scale, np.float32).reshape(-1, 3)
-    n = tex.mat_diffuse.shape[0]
     if len(remap) != n or len(scale) != n or remap.min() < 0 or remap.max() >= n:
         raise ValueError(f"material look: expected {n} remap entries in range and {n} scales")
+    return remap, scale
+
+
+def set_material_look(tex: Textures, remap: np.ndarray, scale: np.ndarray, device) -> None:
+    """Per-frame material remap (id -> id sampled) and diffuse multipliers (n_materials, 3)."""
+    remap, scale = checked_material_look(tex.mat_diffuse.shape[0], remap, scale)
     tex.mat_remap = wp.array(remap, dtype=wp.int32, device=device)
     tex.mat_scale = wp.array(scale, dtype=wp.vec3, device=device)

@@ -17,7 +17,8 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 import roadtwin_warp_render
 from roadtwin_core import PluginManager, RoadtwinError
-from roadtwin_core.render import Camera, Intrinsics, RenderMesh, RenderParams, build_render_mesh, look_from
+from roadtwin_core.render import Camera, Intrinsics, RenderMesh, RenderParams, build_render_mesh, look_from, to_srgb8
+from roadtwin_core.render.scene_look import MaterialLook
 from roadtwin_core.usd import load_town
 from roadtwin_core.usd.stage import apply_labels, new_stage, write_mesh
 
@@ -352,3 +353,32 @@ def test_road_material_variant_selects_the_binding(renderer, tmp_path):
         load_town(path, looks=True, variants={"roadMaterial": "marble"})
     saved = Usd.Stage.Open(str(path))
     assert saved.GetPrimAtPath("/Town").GetVariantSets().GetVariantSet("roadMaterial").GetVariantSelection() == "red"
+
+
+def test_frames_finished_in_batches_each_show_their_own_look(renderer, two_quads):
+    """``render_finished`` (what ``render --device cuda`` runs) queues a batch's material looks,
+    lanes and sensors in one upload and the next batch before the caller takes this one's
+    frames: each frame must still show its own look — the solid texture times Lambert times that
+    frame's diffuse scale, tone-mapped (closed form) — and its bytes must not depend on the batch
+    it rendered in (frames rendered one call each)."""
+    mesh = build_render_mesh(load_town(two_quads, looks=True))
+    n = len(mesh.materials)
+    solid = next(i for i, m in enumerate(mesh.materials) if m.name.endswith("SolidA"))
+    cam = down_camera(-20.0, 10.0, 2.0, size=16)
+    params = RenderParams(shadows=False, sun_elevation_deg=SUN_EL, sun_azimuth_deg=SUN_AZ)
+    factors = [0.3, 0.5, 0.7, 0.9, 1.1]
+
+    def request(f):
+        scale = np.ones((n, 3))
+        scale[solid] = f
+        return {"camera": cam, "params": params, "effects": None, "labels": {"label_distance": 1e3},
+                "look": MaterialLook(np.arange(n), scale)}
+
+    batched = list(renderer.render_finished(mesh, [request(f) for f in factors], params, batch=2))
+    assert len(batched) == len(factors)
+    for f, frame in zip(factors, batched):
+        want = to_srgb8((srgb_decode(A_RGB) * lambert() * f)[None, None].astype(np.float32))[0, 0]
+        assert np.abs(frame["rgb8"].astype(int) - want.astype(int)).max() <= 1, (f, frame["rgb8"][8, 8], want)
+        alone = next(iter(renderer.render_finished(mesh, [request(f)], params, batch=1)))
+        for key in ("rgb8", "labels", "depth", "instance"):
+            np.testing.assert_array_equal(frame[key], alone[key])
