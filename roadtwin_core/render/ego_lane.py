@@ -31,6 +31,9 @@ def world_points(camera: Camera, depth: np.ndarray) -> np.ndarray:
     return pc @ camera.rotation.T + camera.position
 
 
+BRUTE_FORCE_PAIRS = 100_000     # points x samples up to which the nearest sample is found without a k-d tree
+
+
 def _densify(line: np.ndarray, step_m: float) -> tuple[np.ndarray, np.ndarray]:
     seg = np.linalg.norm(np.diff(line, axis=0), axis=1)
     line = line[np.concatenate([[True], seg > 1e-9])]
@@ -49,7 +52,10 @@ def lane_coordinates(xy: np.ndarray, lane_xy: np.ndarray, step_m: float = 0.25) 
     if len(pts) < 2:
         raise RoadtwinError("ego lane: the lane centreline has zero length")
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    _, k = cKDTree(pts).query(xy)
+    if len(xy) * len(pts) <= BRUTE_FORCE_PAIRS:     # a camera's own position: a tree costs more than it saves
+        k = np.argmin((xy[:, None, 0] - pts[None, :, 0]) ** 2 + (xy[:, None, 1] - pts[None, :, 1]) ** 2, axis=1)
+    else:
+        _, k = cKDTree(pts).query(xy)
     x, y = xy[:, 0], xy[:, 1]
     # per piece once (not per point): start, direction, squared length (the same numbers the
     # per-point form computed, component by component, so the results are bit for bit the same)

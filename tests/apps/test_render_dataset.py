@@ -660,3 +660,45 @@ def test_frames_finished_in_forked_processes_write_what_the_serial_path_writes(r
                                                    randomize=True, classmap="builtin:road_defects_br",
                                                    formats="mmseg,coco", executor=name, workers=2, seed=6), pm=pm)
     assert_same_dataset(outs["serial"], outs["local"])
+
+
+def test_device_finished_frames_through_the_shared_ring_write_what_threads_write(road, pm, tmp_path, monkeypatch):
+    """Frames finished on the device reach forked finishing processes through shared memory
+    (``frame_sink.FrameRing``), not pickled: the files must be the threads' (no ring), and the
+    ring must have carried every frame."""
+    import roadtwin_core.apps.render.frame_sink as sink_mod
+    import roadtwin_core.apps.render.run as run_mod
+
+    monkeypatch.setattr(sink_mod, "finish_on_device", lambda ctx, jobs, device: True)
+    carried = []
+    put = sink_mod.FrameRing.put
+    monkeypatch.setattr(sink_mod.FrameRing, "put", lambda self, k, arrays: carried.append(k) or put(self, k, arrays))
+    outs = {}
+    for name in ("serial", "local"):
+        if name == "local":
+            monkeypatch.setattr(run_mod, "_on_gpu", lambda device: True)
+        outs[name] = tmp_path / name
+        run_render(road, outs[name], RenderOptions(frames=7, rig="survey", size="64x40", views="defects:0.5",
+                                                   randomize=True, classmap="builtin:road_defects_br",
+                                                   formats="mmseg,coco,depth", executor=name, workers=2, seed=6), pm=pm)
+    assert carried == list(range(7))
+    assert_same_dataset(outs["serial"], outs["local"])
+
+
+def test_frame_ring_slots_hold_their_frames_until_reused():
+    """Each of a ring's slots keeps its frame's arrays (shape, dtype, values) while the next
+    ``slots - 1`` frames are put; arrays too large for a slot are refused (they go pickled)."""
+    from roadtwin_core.apps.render.frame_sink import FrameRing
+
+    ring = FrameRing(slot_bytes=64 * 40 * 12 + 4096, slots=4)
+    rng = np.random.default_rng(0)
+    frames = [{"rgb8": rng.integers(0, 255, (40, 64, 3), dtype=np.uint8),
+               "depth": rng.random((40, 64), dtype=np.float32),
+               "instance": rng.integers(0, 99, (40, 64), dtype=np.int32)} for _ in range(4)]
+    layouts = [ring.put(k, f) for k, f in enumerate(frames)]
+    for f, layout in zip(frames, layouts):
+        got = ring.get(layout)
+        for key, a in f.items():
+            assert got[key].dtype == a.dtype and got[key].shape == a.shape
+            np.testing.assert_array_equal(got[key], a)
+    assert ring.put(4, {"big": np.zeros(64 * 40 * 16, np.uint8)}) is None

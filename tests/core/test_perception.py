@@ -189,3 +189,28 @@ def test_survey_rig_estimate_recovers_a_known_camera():
     survey = RIG_PRESETS["survey"]
     assert (survey.width, survey.height) == (512, 320) and survey.intrinsics().fx == pytest.approx(k.fx)
     assert RIG_PRESETS["stereo"].baseline_m == 0.54
+
+
+def test_lane_coordinates_of_single_points_match_the_closed_form():
+    """A camera's arc length along its lane (taken for every device-finished frame, without a
+    k-d tree for a few points): on an L-shaped centreline, the closed-form foot of the
+    perpendicular; the same numbers as the k-d tree's path for many points."""
+    import roadtwin_core.render.ego_lane as ego
+
+    lane = np.array([[0.0, 0.0], [30.0, 0.0], [30.0, 40.0]])
+    pts = np.array([[12.3, 1.1], [29.0, -0.5], [31.2, 25.0], [-2.0, 0.4], [30.5, 44.0]])
+    want_s = [12.3, 29.0, 55.0, 0.0, 70.0]
+    want_lat = [1.1, -0.5, -1.2, 0.4, 0.5]
+    want_inside = [True, True, True, False, False]
+    for p, s, lat, inside in zip(pts, want_s, want_lat, want_inside):
+        got = ego.lane_coordinates(p[None], lane)
+        assert got[0][0] == pytest.approx(s, abs=1e-9) and got[2][0] == inside
+        if inside:
+            assert got[1][0] == pytest.approx(lat, abs=1e-9)
+    rng = np.random.default_rng(1)
+    many = rng.uniform([-5, -5], [35, 45], (5000, 2))          # beyond the brute-force size: the k-d tree
+    assert len(many) * 300 > ego.BRUTE_FORCE_PAIRS
+    tree = ego.lane_coordinates(many, lane)
+    one_by_one = [ego.lane_coordinates(p[None], lane) for p in many[:200]]
+    for i, got in enumerate(one_by_one):
+        assert all(g[0] == t[i] for g, t in zip(got, tree))
