@@ -26,6 +26,8 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, Thr
 from dataclasses import dataclass, replace
 from typing import Callable
 
+import numpy as np
+
 from ...errors import RoadtwinError
 from .device_frames import encode_device_frame, finish_on_device, render_on_device
 from .pipeline import FrameJob, FrameOut, RenderContext, finish_frame, prepared_scene, render_views
@@ -51,8 +53,6 @@ class FrameRing:
     def put(self, k: int, arrays: dict) -> list | None:
         """Copy ``arrays`` (name -> ndarray) into frame ``k``'s slot; their layout, or None when
         they do not fit (they then travel pickled)."""
-        import numpy as np
-
         if sum(a.nbytes for a in arrays.values()) > self.slot_bytes:
             return None
         at, layout = (k % self.slots) * self.slot_bytes, []
@@ -65,8 +65,6 @@ class FrameRing:
 
     def get(self, layout: list) -> dict:
         """The arrays of a slot, as views of the shared memory (valid until the frame commits)."""
-        import numpy as np
-
         return {name: np.ndarray(shape, np.dtype(dtype), buffer=self.buf, offset=at) for name, shape, dtype, at in layout}
 
     def close(self) -> None:
