@@ -13,6 +13,9 @@ the middle sub-frame's (odd counts). Sensor noise: Gaussian read noise on the to
 from __future__ import annotations
 
 import math
+import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,8 +140,10 @@ def reproject_blur(rgb: np.ndarray, depth: np.ndarray, mid: Camera, cams: list[C
     them sees it: pixel q of camera c looks at the point that its ray meets at the middle frame's
     depth of q, and takes the middle image's colour where that point projects (bilinear). The
     depth of q in c is the middle frame's: right for the few pixels that a blur moves, but at
-    occlusion edges. Every array is reused across the sub-frames (a frame's worth of fresh
-    arrays per sub-frame was a fifth of a 1280x720 drive's wall time)."""
+    occlusion edges. The sub-frames are moved on a thread pool (numpy's and OpenCV's loops let
+    go of the GIL; a 1280x720 pair's seven sub-frames were most of a drive's wall time on one
+    core) into buffers kept across frames (fresh frame-sized arrays cost page faults every
+    frame), then summed in their order: the same float32 sum, hence the same bytes, as one thread."""
     try:
         import cv2
     except ImportError as exc:
@@ -149,35 +154,74 @@ def reproject_blur(rgb: np.ndarray, depth: np.ndarray, mid: Camera, cams: list[C
     v = np.arange(k.height, dtype=np.float32)[:, None]
     x, y = (u - np.float32(k.cx)) / np.float32(k.fx) * z, (v - np.float32(k.cy)) / np.float32(k.fy) * z
     src = np.ascontiguousarray(rgb, dtype=np.float32)
-    maps = [np.empty_like(z) for _ in range(3)]
-    term, behind = np.empty_like(z), np.empty(z.shape, bool)
-    acc, shot = None, np.empty_like(src)
-    for c in cams:
-        if np.array_equal(c.cam_to_world, mid.cam_to_world):
-            view = src
-        else:
-            # camera c's point -> world -> the middle camera's frame: one rigid transform
-            rel = (np.linalg.inv(mid.cam_to_world) @ c.cam_to_world).astype(np.float32)
-            for i, m in enumerate(maps):       # m = rel[i, 0] x + rel[i, 1] y + rel[i, 2] z + rel[i, 3]
-                np.multiply(rel[i, 0], x, out=m)
-                for col, a in ((1, y), (2, z)):
-                    np.add(m, np.multiply(rel[i, col], a, out=term), out=m)
-                np.add(m, rel[i, 3], out=m)
-            map_x, map_y, zm = maps
-            np.logical_not(np.greater(zm, np.float32(1e-6), out=behind), out=behind)
-            zm[behind] = np.float32(1.0)
-            for m, f, cc in ((map_x, k.fx, k.cx), (map_y, k.fy, k.cy)):
-                np.multiply(np.float32(f), m, out=m)
-                np.divide(m, zm, out=m)
-                np.add(m, np.float32(cc), out=m)
-                m[behind] = np.float32(-1.0)
-            view = cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, dst=shot if acc is not None else None,
-                             borderMode=cv2.BORDER_REPLICATE)
-        if acc is None:
-            acc = view.copy() if view is src else view
-        else:
-            np.add(acc, view, out=acc)
+    moved = [c for c in cams if not np.array_equal(c.cam_to_world, mid.cam_to_world)]
+
+    def move(c: Camera, shot: np.ndarray) -> np.ndarray:
+        """``src`` as camera ``c`` sees it, into ``shot`` (buffers of this thread for the maps)."""
+        maps, term, behind = _thread_buffers(z.shape)
+        # camera c's point -> world -> the middle camera's frame: one rigid transform
+        rel = (np.linalg.inv(mid.cam_to_world) @ c.cam_to_world).astype(np.float32)
+        for i, m in enumerate(maps):       # m = rel[i, 0] x + rel[i, 1] y + rel[i, 2] z + rel[i, 3]
+            np.multiply(rel[i, 0], x, out=m)
+            for col, a in ((1, y), (2, z)):
+                np.add(m, np.multiply(rel[i, col], a, out=term), out=m)
+            np.add(m, rel[i, 3], out=m)
+        map_x, map_y, zm = maps
+        np.logical_not(np.greater(zm, np.float32(1e-6), out=behind), out=behind)
+        zm[behind] = np.float32(1.0)
+        for m, f, cc in ((map_x, k.fx, k.cx), (map_y, k.fy, k.cy)):
+            np.multiply(np.float32(f), m, out=m)
+            np.divide(m, zm, out=m)
+            np.add(m, np.float32(cc), out=m)
+            m[behind] = np.float32(-1.0)
+        return cv2.remap(src, map_x, map_y, cv2.INTER_LINEAR, dst=shot, borderMode=cv2.BORDER_REPLICATE)
+
+    with _BLUR_LOCK:                       # the shot buffers are shared by every call
+        shots = _shot_buffers(src.shape, len(moved))
+        views = iter(_blur_pool().map(move, moved, shots) if len(moved) > 1 else map(move, moved, shots))
+        acc = None
+        for c in cams:
+            view = src if not any(c is m for m in moved) else next(views)
+            if acc is None:
+                acc = view.copy()
+            else:
+                np.add(acc, view, out=acc)
     return _divide(acc, len(cams))
+
+
+_BLUR_LOCK = threading.Lock()
+_BLUR_STATE: dict = {}
+
+
+def _blur_pool() -> ThreadPoolExecutor:
+    """Threads for the sub-frames (one a core, at most 8), made once a process (a forked child
+    makes its own)."""
+    pool = _BLUR_STATE.get("pool")
+    if pool is None or _BLUR_STATE.get("pid") != os.getpid():
+        pool = ThreadPoolExecutor(max(1, min(8, os.cpu_count() or 1)), thread_name_prefix="camera-blur")
+        _BLUR_STATE.update(pool=pool, pid=os.getpid())
+    return pool
+
+
+def _shot_buffers(shape: tuple, n: int) -> list[np.ndarray]:
+    """``n`` images of ``shape`` (float32), kept across calls."""
+    shots = _BLUR_STATE.get("shots")
+    if shots is None or shots[0].shape != shape or len(shots) < n or _BLUR_STATE.get("shots_pid") != os.getpid():
+        shots = [np.empty(shape, np.float32) for _ in range(max(n, 1))]
+        _BLUR_STATE.update(shots=shots, shots_pid=os.getpid())
+    return shots[:n]
+
+
+_THREAD = threading.local()
+
+
+def _thread_buffers(shape: tuple) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """This thread's maps (x, y, z), product term and behind-the-camera mask for a ``shape`` frame."""
+    bufs = getattr(_THREAD, "bufs", None)
+    if bufs is None or bufs[1].shape != shape:
+        bufs = ([np.empty(shape, np.float32) for _ in range(3)], np.empty(shape, np.float32), np.empty(shape, bool))
+        _THREAD.bufs = bufs
+    return bufs
 
 
 class MonoCamera(SensorType):

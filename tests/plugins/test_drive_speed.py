@@ -91,3 +91,28 @@ def test_exposure_mean_has_the_bytes_of_numpy_mean():
     for n in (1, 2, 5, 7):
         imgs = [(rng.random((9, 11, 3)) * 4).astype(np.float32) for _ in range(n)]
         assert np.array_equal(cam_mod.exposure_mean(imgs), np.mean(np.stack(imgs), axis=0))
+
+
+def test_reprojected_blur_on_threads_keeps_its_bytes(monkeypatch):
+    """The sub-frames are moved on a thread pool into buffers kept across frames and summed in
+    their order: one thread or eight, a first or a later call (buffers reused after another
+    frame's), the bytes are the same; the mean of unmoved sub-frames is the image itself."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from roadtwin_core.render import Camera, Intrinsics, look_from
+
+    cam_mod = pytest.importorskip("roadtwin_sensors.camera")
+    rng = np.random.default_rng(3)
+    k = Intrinsics.from_fov(160, 90, 80.0)
+    rgb = rng.random((90, 160, 3), dtype=np.float32)
+    depth = rng.random((90, 160), dtype=np.float32) * 20 + 2
+    cams = [Camera(k, look_from((0.04 * i, 0.0, 1.5), 0.002 * i, -0.2)) for i in range(7)]
+    first = cam_mod.reproject_blur(rgb, depth, cams[3], cams)
+    other = cam_mod.reproject_blur(rgb[::-1].copy(), depth, cams[1], cams[:5])
+    again = cam_mod.reproject_blur(rgb, depth, cams[3], cams)
+    monkeypatch.setitem(cam_mod._BLUR_STATE, "pool", ThreadPoolExecutor(1))
+    one_thread = cam_mod.reproject_blur(rgb, depth, cams[3], cams)
+    assert np.array_equal(first, again) and np.array_equal(first, one_thread)
+    assert not np.array_equal(first, other)
+    still = cam_mod.reproject_blur(rgb, depth, cams[3], [cams[3]] * 3)
+    np.testing.assert_allclose(still, rgb, rtol=1e-6)
