@@ -107,14 +107,26 @@ class CameraSensor(MountedSensor):
         return out
 
     def _develop(self, linear: np.ndarray) -> np.ndarray:
-        """The exposure's mean linear image -> 8-bit, with read noise (in place: a 1280x720 pair
-        is 22 MB a frame, and fresh arrays of that size cost page faults every frame)."""
-        img = to_srgb8(linear).astype(np.float32)
+        """The exposure's mean linear image -> 8-bit, with read noise. Element by element, so the
+        tone curve and the rounding run in bands of rows on the blur's threads (the same bytes as
+        one pass); the noise is drawn in one piece, in the generator's order."""
+        noise = None
         if self.params.read_noise > 0:
-            img += self.rng.normal(0.0, self.params.read_noise, img.shape).astype(np.float32)
-        np.round(img, out=img)
-        np.clip(img, 0, 255, out=img)
-        return img.astype(np.uint8)
+            noise = self.rng.normal(0.0, self.params.read_noise, linear.shape).astype(np.float32)
+        out = np.empty(linear.shape, np.uint8)
+
+        def band(rows: slice) -> None:
+            img = to_srgb8(linear[rows]).astype(np.float32)
+            if noise is not None:
+                img += noise[rows]
+            np.round(img, out=img)
+            np.clip(img, 0, 255, out=img)
+            out[rows] = img.astype(np.uint8)
+
+        h = linear.shape[0]
+        step = max(1, -(-h // 16))
+        list(_blur_pool().map(band, [slice(r, min(r + step, h)) for r in range(0, h, step)]))
+        return out
 
 
 def exposure_mean(images) -> np.ndarray:

@@ -116,3 +116,20 @@ def test_reprojected_blur_on_threads_keeps_its_bytes(monkeypatch):
     assert not np.array_equal(first, other)
     still = cam_mod.reproject_blur(rgb, depth, cams[3], [cams[3]] * 3)
     np.testing.assert_allclose(still, rgb, rtol=1e-6)
+
+
+def test_develop_in_bands_is_the_one_pass_camera_model():
+    """The camera's development (tone curve, read noise drawn in one piece, rounding) runs in
+    bands of rows on threads: its bytes are the one-pass formula's, frame after frame."""
+    from types import SimpleNamespace
+
+    from roadtwin_core.render import to_srgb8
+
+    cam_mod = pytest.importorskip("roadtwin_sensors.camera")
+    lin = np.random.default_rng(4).random((45, 80, 3), dtype=np.float32) * 2
+    sensor = SimpleNamespace(params=SimpleNamespace(read_noise=1.5), rng=np.random.default_rng(9))
+    ref_rng = np.random.default_rng(9)
+    for _ in range(2):
+        want = to_srgb8(lin).astype(np.float32) + ref_rng.normal(0.0, 1.5, lin.shape).astype(np.float32)
+        want = np.clip(np.round(want), 0, 255).astype(np.uint8)
+        np.testing.assert_array_equal(cam_mod.CameraSensor._develop(sensor, lin), want)
