@@ -646,9 +646,9 @@ def test_frames_finished_on_threads_write_what_one_thread_writes(road, pm, tmp_p
     assert all(v >= 0 for v in phases.values())
 
 
-def test_frames_finished_in_forked_processes_write_what_the_serial_path_writes(road, pm, tmp_path, monkeypatch):
-    """On a GPU device frames render in the main process and forked processes finish and write
-    them; forced here on the CPU (the same code path but the device), it must write the serial bytes."""
+def serial_then_forked(road, pm, tmp_path, monkeypatch, frames: int, formats: str) -> dict:
+    """The same survey render through the serial executor (threads) and through the GPU path
+    (forked finishing processes, forced on the CPU): {"serial": folder, "local": folder}."""
     import roadtwin_core.apps.render.run as run_mod
 
     outs = {}
@@ -656,9 +656,16 @@ def test_frames_finished_in_forked_processes_write_what_the_serial_path_writes(r
         if name == "local":
             monkeypatch.setattr(run_mod, "_on_gpu", lambda device: True)
         outs[name] = tmp_path / name
-        run_render(road, outs[name], RenderOptions(frames=5, rig="survey", size="64x40", views="defects:0.5",
+        run_render(road, outs[name], RenderOptions(frames=frames, rig="survey", size="64x40", views="defects:0.5",
                                                    randomize=True, classmap="builtin:road_defects_br",
-                                                   formats="mmseg,coco", executor=name, workers=2, seed=6), pm=pm)
+                                                   formats=formats, executor=name, workers=2, seed=6), pm=pm)
+    return outs
+
+
+def test_frames_finished_in_forked_processes_write_what_the_serial_path_writes(road, pm, tmp_path, monkeypatch):
+    """On a GPU device frames render in the main process and forked processes finish and write
+    them; forced here on the CPU (the same code path but the device), it must write the serial bytes."""
+    outs = serial_then_forked(road, pm, tmp_path, monkeypatch, 5, "mmseg,coco")
     assert_same_dataset(outs["serial"], outs["local"])
 
 
@@ -667,20 +674,12 @@ def test_device_finished_frames_through_the_shared_ring_write_what_threads_write
     (``frame_sink.FrameRing``), not pickled: the files must be the threads' (no ring), and the
     ring must have carried every frame."""
     import roadtwin_core.apps.render.frame_sink as sink_mod
-    import roadtwin_core.apps.render.run as run_mod
 
     monkeypatch.setattr(sink_mod, "finish_on_device", lambda ctx, jobs, device: True)
     carried = []
     put = sink_mod.FrameRing.put
     monkeypatch.setattr(sink_mod.FrameRing, "put", lambda self, k, arrays: carried.append(k) or put(self, k, arrays))
-    outs = {}
-    for name in ("serial", "local"):
-        if name == "local":
-            monkeypatch.setattr(run_mod, "_on_gpu", lambda device: True)
-        outs[name] = tmp_path / name
-        run_render(road, outs[name], RenderOptions(frames=7, rig="survey", size="64x40", views="defects:0.5",
-                                                   randomize=True, classmap="builtin:road_defects_br",
-                                                   formats="mmseg,coco,depth", executor=name, workers=2, seed=6), pm=pm)
+    outs = serial_then_forked(road, pm, tmp_path, monkeypatch, 7, "mmseg,coco,depth")
     assert carried == list(range(7))
     assert_same_dataset(outs["serial"], outs["local"])
 
