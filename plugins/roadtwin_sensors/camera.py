@@ -166,7 +166,8 @@ def reproject_blur(rgb: np.ndarray, depth: np.ndarray, mid: Camera, cams: list[C
     v = np.arange(k.height, dtype=np.float32)[:, None]
     x, y = (u - np.float32(k.cx)) / np.float32(k.fx) * z, (v - np.float32(k.cy)) / np.float32(k.fy) * z
     src = np.ascontiguousarray(rgb, dtype=np.float32)
-    moved = [c for c in cams if not np.array_equal(c.cam_to_world, mid.cam_to_world)]
+    is_moved = [not np.array_equal(c.cam_to_world, mid.cam_to_world) for c in cams]
+    moved = [c for c, m in zip(cams, is_moved) if m]
 
     def move(c: Camera, shot: np.ndarray) -> np.ndarray:
         """``src`` as camera ``c`` sees it, into ``shot`` (buffers of this thread for the maps)."""
@@ -190,10 +191,10 @@ def reproject_blur(rgb: np.ndarray, depth: np.ndarray, mid: Camera, cams: list[C
 
     with _BLUR_LOCK:                       # the shot buffers are shared by every call
         shots = _shot_buffers(src.shape, len(moved))
-        views = iter(_blur_pool().map(move, moved, shots) if len(moved) > 1 else map(move, moved, shots))
+        views = _blur_pool().map(move, moved, shots) if len(moved) > 1 else map(move, moved, shots)
         acc = None
-        for c in cams:
-            view = src if not any(c is m for m in moved) else next(views)
+        for m in is_moved:
+            view = next(views) if m else src
             if acc is None:
                 acc = view.copy()
             else:

@@ -20,6 +20,7 @@ __all__ = ["DeviceFinisher", "gaussian_weights", "load_post_kernels", "make_sens
 
 LOG_K_RANGE = (math.log(1e-4), math.log(1e4))     # auto-exposure scales searched (as the CPU's bisection)
 STAGED_TYPES = {"lane": wp.vec2, "blur_weights": float, "remap": wp.int32, "scale": wp.vec3}
+RESULTS = ("rgb8", "labels", "depth", "inst", "lo", "hi")     # the buffers a batch brings back to the host
 
 
 def load_post_kernels(device) -> None:
@@ -167,8 +168,7 @@ class DeviceFinisher:
         self._queued = b
         if dev.is_cuda:                             # into pinned host memory: the copies run without the host
             if self._host is None:
-                self._host = {k: wp.empty_like(getattr(self, k), device="cpu", pinned=True)
-                              for k in ("rgb8", "labels", "depth", "inst", "lo", "hi")}
+                self._host = {k: wp.empty_like(getattr(self, k), device="cpu", pinned=True) for k in RESULTS}
             for k, host in self._host.items():
                 wp.copy(host, getattr(self, k))
 
@@ -180,7 +180,7 @@ class DeviceFinisher:
             wp.synchronize_device(self.device)
             src = {k: v.numpy() for k, v in self._host.items()}
         else:
-            src = {k: getattr(self, k).numpy() for k in ("rgb8", "labels", "depth", "inst", "lo", "hi")}
+            src = {k: getattr(self, k).numpy() for k in RESULTS}
         return {"rgb8": src["rgb8"][:b * n * 3].reshape(b, h, w, 3).copy(),
                 "labels": src["labels"][:b * n].reshape(b, h, w).copy(),
                 "depth": src["depth"][:b * n].reshape(b, h, w).copy(),

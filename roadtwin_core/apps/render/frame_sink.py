@@ -52,16 +52,19 @@ class FrameRing:
 
     def put(self, k: int, arrays: dict) -> list | None:
         """Copy ``arrays`` (name -> ndarray) into frame ``k``'s slot; their layout, or None when
-        they do not fit (they then travel pickled)."""
-        if sum(a.nbytes for a in arrays.values()) > self.slot_bytes:
-            return None
-        at, layout = (k % self.slots) * self.slot_bytes, []
-        for name, a in arrays.items():
-            view = np.ndarray(a.shape, a.dtype, buffer=self.buf, offset=at)
-            view[...] = a
-            layout.append((name, a.shape, a.dtype.str, at))
+        they do not fit (nothing is written then; they travel pickled)."""
+        start = (k % self.slots) * self.slot_bytes
+        offsets, at = [], start
+        for a in arrays.values():
+            offsets.append(at)
             at += -(-a.nbytes // 64) * 64                     # 64-byte aligned
-        return layout if at <= (k % self.slots + 1) * self.slot_bytes else None
+        if at > start + self.slot_bytes:
+            return None
+        layout = []
+        for (name, a), off in zip(arrays.items(), offsets):
+            np.ndarray(a.shape, a.dtype, buffer=self.buf, offset=off)[...] = a
+            layout.append((name, a.shape, a.dtype.str, off))
+        return layout
 
     def get(self, layout: list) -> dict:
         """The arrays of a slot, as views of the shared memory (valid until the frame commits)."""
@@ -74,9 +77,10 @@ class FrameRing:
 def ring_for(jobs: list[FrameJob], workers: int) -> FrameRing | None:
     """A ring for frames of mono cameras of one size (what the device finishes): rgb8, labels,
     depth and instance ids, 12 bytes a pixel, with room for alignment."""
-    sizes = {(j.camera.intrinsics.width, j.camera.intrinsics.height) for j in jobs
-             if hasattr(j.camera, "intrinsics")}
-    if len(sizes) != 1 or any(not hasattr(j.camera, "intrinsics") for j in jobs):
+    if not all(hasattr(j.camera, "intrinsics") for j in jobs):      # stereo pairs are not finished on the device
+        return None
+    sizes = {(j.camera.intrinsics.width, j.camera.intrinsics.height) for j in jobs}
+    if len(sizes) != 1:
         return None
     w, h = sizes.pop()
     return FrameRing(w * h * 12 + 4096, 2 * workers + 2)
@@ -130,7 +134,7 @@ class FrameSink:
         to a process pool its arrays go through the shared ring."""
         if _RING is not None:
             f = out.frame
-            layout = _RING.put(len(self.shares) + len(self.pending),
+            layout = _RING.put(self._next_index(),
                                {"rgb8": out.rgb8, "semantic": f.semantic, "depth": f.depth, "instance": f.instance})
             if layout is not None:
                 out = replace(out, rgb8=None, frame=replace(f, semantic=None, depth=None, instance=None))
@@ -155,9 +159,13 @@ class FrameSink:
         if len(running) > 2 * self.workers:
             wait(running, return_when=FIRST_COMPLETED)
 
+    def _next_index(self) -> int:
+        """The index the next submitted frame gets (frames committed and in flight before it)."""
+        return len(self.shares) + len(self.pending)
+
     def _submit(self, fn, *args) -> None:
         """Blocks while too many frames are in flight (memory stays bounded), committing the oldest."""
-        k = len(self.shares) + len(self.pending)
+        k = self._next_index()
         self.pending.append(self.pool.submit(fn, k, *args))
         while len(self.pending) > 2 * self.workers or (self.pending and self.pending[0].done()):
             self._commit_oldest()
