@@ -10,8 +10,9 @@ and the frames/s that phase alone allows on one thread; then the run's wall-cloc
     .venv/bin/python bench/render_throughput.py --frames 16 --device cpu          # here (2 cores)
     python3 bench/render_throughput.py --stage out/town.usda --frames 2000 --device cuda   # GPU
 
-Phases: stage_read (USD -> render mesh), view_sampling (cameras and ego lanes), randomize (the
-per-frame draws and look table), prepare (scene to the device; once per process), render (ray
+Phases: stage_read (USD -> render mesh), cameras (the camera source and the look table),
+view_sampling (cameras and ego lanes, per frame), randomize (the per-frame draws), planning (the
+wall seconds of those two: on forked processes from 1,024 frames, ``apps/render/planning.py``), prepare (scene to the device; once per process), render (ray
 casting and shading, arrays to the host), sensor (blur, vignetting, exposure, noise, JPEG),
 labels (ego lane, class map, dilation), write (PNG/JPEG/npy files, COCO masks), commit (meta
 records, in order). On CUDA the warp renderer finishes frames on the device
@@ -36,7 +37,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-SETUP = ("stage_read", "view_sampling", "randomize", "prepare")
+SETUP = ("stage_read", "cameras", "view_sampling", "randomize", "planning", "prepare")
 FRAME = ("render", "sensor", "labels", "write", "commit")
 
 

@@ -701,3 +701,36 @@ def test_frame_ring_slots_hold_their_frames_until_reused():
             assert got[key].dtype == a.dtype and got[key].shape == a.shape
             np.testing.assert_array_equal(got[key], a)
     assert ring.put(4, {"big": np.zeros(64 * 40 * 16, np.uint8)}) is None
+
+
+def test_frames_planned_in_forked_blocks_write_what_planning_here_writes(road, pm, tmp_path, monkeypatch):
+    """Frame i's camera, look and camera model depend on (seed, i) alone, so planning frames in
+    blocks of 2 on a pool of forked processes must write the dataset planned in one block here."""
+    import roadtwin_core.apps.render.planning as planning
+
+    def render(name):
+        run_render(road, tmp_path / name, RenderOptions(frames=7, rig="survey", size="64x40", views="defects:0.5:clear",
+                                                        randomize=True, classmap="builtin:road_defects_br",
+                                                        formats="mmseg", executor="serial", seed=4), pm=pm)
+        return tmp_path / name
+
+    here = render("here")
+    monkeypatch.setattr(planning, "PARALLEL_FROM", 1)
+    monkeypatch.setattr(planning, "BLOCK", 2)
+    monkeypatch.setattr(planning.os, "sched_getaffinity", lambda pid: {0, 1, 2})
+    forked = render("forked")
+    assert_same_dataset(here, forked)
+    frames = json.loads((forked / "meta.json").read_text())["frames"]
+    assert [f["index"] for f in frames] == list(range(7))
+    assert len({json.dumps(f["randomization"]) for f in frames}) == 7      # every frame drew its own look
+
+
+def test_meta_json_puts_a_frame_a_line_and_reads_back_equal():
+    from roadtwin_core.apps.render.writers.dataset import meta_json
+
+    meta = {"format": "x", "frames": [{"index": i, "cam_to_world": [[1.5, 0.0]], "files": {"rgb": f"{i}.jpg"}}
+                                      for i in range(3)], "events": None}
+    text = meta_json(meta)
+    assert json.loads(text) == meta
+    assert [json.loads(line.strip().rstrip(",")) for line in text.splitlines() if '"index"' in line] == meta["frames"]
+    assert json.loads(meta_json({**meta, "frames": []})) == {**meta, "frames": []}

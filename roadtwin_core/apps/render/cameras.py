@@ -2,7 +2,11 @@
 road: no camera below it or inside geometry), ``--views defects:SHARE`` (the view sampler),
 the stage's ``UsdGeom.Camera`` prims, random lane poses (also ``--views random``). Sampled poses
 keep clear of the vehicles a town's props stand in its lanes. Also the lane
-each camera drives in, for datasets with an ego-lane class."""
+each camera drives in, for datasets with an ego-lane class.
+
+Sampled views are drawn per frame from ``(seed, i)`` alone, so they are planned in blocks
+(:class:`DefectViews`), which ``planning`` spreads over processes; every other source is cheap
+and planned whole (:meth:`CameraPlan.block` slices it)."""
 from __future__ import annotations
 
 import dataclasses
@@ -19,7 +23,7 @@ from ...render.view_sampler import ViewRig, chain_lanes, defect_targets, lane_ah
 from .lanes import nearest_lane
 from .options import DEFECT_DISTANCE_M, Rig, ViewSpec
 
-__all__ = ["CameraPlan", "ego_lane_points", "plan_cameras", "with_ego_lanes"]
+__all__ = ["CameraPlan", "DefectViews", "ego_lane_points", "plan_cameras", "with_ego_lanes"]
 
 
 @dataclass
@@ -34,10 +38,44 @@ class CameraPlan:
     view_records: list[dict] = field(default_factory=list)   # per frame: the view sampler's or camera prim's record
     lane_of: list = field(default_factory=list)              # per frame: (chained lane, s) or None; [] if unknown
 
+    @property
+    def frames(self) -> int:
+        return len(self.poses)
+
+    def block(self, start: int, stop: int) -> "CameraPlan":
+        """Frames ``start .. stop - 1`` of this plan."""
+        return dataclasses.replace(self, poses=self.poses[start:stop], view_records=self.view_records[start:stop],
+                                   lane_of=self.lane_of[start:stop])
+
+
+@dataclass
+class DefectViews:
+    """``--views defects:SHARE``, drawn when asked: :meth:`block` samples frames ``start .. stop - 1``
+    (the view sampler's frame ``i`` depends on ``(seed, i)`` alone, so blocks give the views of
+    sampling all frames at once). Same attributes as :class:`CameraPlan` but the per-frame lists."""
+
+    chained: list
+    targets: object                   # view_sampler.DefectTargets
+    ground: object                    # GroundSampler
+    sampler: dict                     # sample_views' keywords
+    frames: int
+    source: str
+    intrinsics: object
+    stereo: bool
+    baseline_m: float
+
+    def block(self, start: int, stop: int) -> CameraPlan:
+        sampled = sample_views(self.chained, self.targets, self.ground, stop - start, start=start, **self.sampler)
+        by_id = {lane.id: lane for lane in self.chained}
+        records = [{k: v for k, v in view.as_dict().items() if k not in ("index", "cam_to_world")} for view in sampled]
+        return CameraPlan([v.cam_to_world for v in sampled], self.source, self.intrinsics, self.stereo, self.baseline_m,
+                          records, [(by_id[v.lane_id], v.s_m) for v in sampled])
+
 
 def plan_cameras(stage: Path, town, lanes: list, ground: Callable, rig: Rig, intrinsics, *, frames: int,
-                 poses: str | Path | None, views: ViewSpec, seed: int, min_clearance_m: float) -> CameraPlan:
-    """The cameras of ``frames`` frames. ``ground()``: the stage's ground sampler (built on first use)."""
+                 poses: str | Path | None, views: ViewSpec, seed: int, min_clearance_m: float) -> CameraPlan | DefectViews:
+    """The cameras of ``frames`` frames (sampled views: drawn per block, :class:`DefectViews`).
+    ``ground()``: the stage's ground sampler (built on first use)."""
     if poses is not None:
         pose_list = load_poses_file(poses)[:frames]
         _check_clearance(pose_list, ground(), str(poses), min_clearance_m)
@@ -74,7 +112,7 @@ def _check_clearance(pose_list, ground, source: str, min_clearance_m: float) -> 
                                 f"(minimum clearance {min_clearance_m} m)")
 
 
-def _aimed_at_defects(stage, town, lanes, ground, rig: Rig, intrinsics, frames, views: ViewSpec, seed) -> CameraPlan:
+def _aimed_at_defects(stage, town, lanes, ground, rig: Rig, intrinsics, frames, views: ViewSpec, seed) -> DefectViews:
     vrig = ViewRig(mount_height_m=rig.mount_height_m, hfov_deg=rig.hfov_deg, width_px=rig.width, height_px=rig.height_px,
                    **({"pitch_deg": rig.pitch_deg} if rig.pitch_deg is not None else {}))
     chained = chain_lanes(lanes)      # what view_sampler.stage_views does, without re-reading the stage
@@ -82,15 +120,13 @@ def _aimed_at_defects(stage, town, lanes, ground, rig: Rig, intrinsics, frames, 
         raise RoadtwinError(f"{stage}: no driving lane centrelines (roadtwin:segment:centerline) to place views on")
     share, background = views.share, views.background
     near_m, far_m = views.distance_m
-    sampled = sample_views(chained, defect_targets(town), ground, frames, rig=vrig, share=share, seed=seed,
-                           background=background, keep_out=lane_keep_out(town), near_m=near_m, far_m=far_m)
-    by_id = {lane.id: lane for lane in chained}
-    records = [{k: v for k, v in view.as_dict().items() if k not in ("index", "cam_to_world")} for view in sampled]
     source = f"defects:{share}" + (":clear" if background == "clear" else "")
     if views.distance_m != DEFECT_DISTANCE_M:
         source += f":{near_m:g}-{far_m:g}"
-    return CameraPlan([v.cam_to_world for v in sampled], source,
-                      intrinsics, rig.stereo, rig.baseline_m, records, [(by_id[v.lane_id], v.s_m) for v in sampled])
+    sampler = {"rig": vrig, "share": share, "seed": seed, "background": background, "keep_out": lane_keep_out(town),
+               "near_m": near_m, "far_m": far_m}
+    return DefectViews(chained, defect_targets(town), ground, sampler, frames, source, intrinsics, rig.stereo,
+                       rig.baseline_m)
 
 
 def _stage_cameras(stage, cams, rig: Rig) -> CameraPlan:
@@ -104,12 +140,12 @@ def _stage_cameras(stage, cams, rig: Rig) -> CameraPlan:
                       [{"camera_prim": c.path, "rig": c.rig} for c in cams])
 
 
-def with_ego_lanes(plan: CameraPlan, lanes: list, lane_width: float) -> CameraPlan:
+def with_ego_lanes(plan: CameraPlan, chained: list, lane_width: float) -> CameraPlan:
     """``plan`` with the lane each camera drives in: the view sampler's lane where it placed the
-    camera, else the nearest lane within ``lane_width`` heading the camera's way (or None)."""
-    if plan.lane_of:
+    camera, else the nearest of the ``chained`` lanes (``chain_lanes``) within ``lane_width``
+    heading the camera's way (or None)."""
+    if plan.lane_of or not plan.poses:
         return plan
-    chained = chain_lanes(lanes)
     return dataclasses.replace(plan, lane_of=[nearest_lane(chained, p, lane_width) for p in plan.poses])
 
 

@@ -53,22 +53,24 @@ from ...errors import RoadtwinError
 from ...executors import make_executor
 from ...params import apply_params, check_params
 from ...plugins import get_plugin_manager
-from ...render import (WEATHERS, Camera, GroundSampler, Intrinsics, RenderParams, StereoCamera, build_render_mesh,
+from ...render import (WEATHERS, GroundSampler, Intrinsics, RenderParams, build_render_mesh,
                        stage_lanes)
 from ...render.classmap import load_class_map
-from ...render.randomize import Ranges, draw
+from ...render.randomize import Ranges
+from ...render.view_sampler import chain_lanes
 from ...render.scene_look import LookTable
 from ...warp_runtime import warp_device
-from .cameras import CameraPlan, ego_lane_points, plan_cameras, with_ego_lanes
+from .cameras import CameraPlan, plan_cameras
 from .events import EventDrive, check_events
 from . import gpu_shards
 from .options import MAX_FRAMES, RenderOptions, Rig, ViewSpec, check_range, check_rig, parse_views, resolve_rig
 from .frame_sink import FrameSink, render_in_process
-from .pipeline import FrameJob, RenderContext, forget, render_chunk
+from .pipeline import RenderContext, forget, render_chunk
+from .planning import FramePlanner, plan_all
 from .writers import DatasetWriter, available_formats, parse_formats
 
 __all__ = ["CheckedOptions", "FramePlan", "Progress", "RenderOptions", "Scene", "check_options", "defect_statistics",
-           "frame_jobs", "load_scene", "plan_frames", "run_render", "write_dataset"]
+           "load_scene", "plan_frames", "run_render", "write_dataset"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -173,27 +175,29 @@ class FramePlan:
     jobs: list[FrameJob]
     context: RenderContext
     drive: EventDrive | None
-    phases: dict = field(default_factory=dict)   # seconds: stage_read, view_sampling, randomize
+    phases: dict = field(default_factory=dict)   # seconds: stage_read, cameras, view_sampling, randomize, planning
 
 
 def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: Scene, pm) -> FramePlan:
-    """Cameras chosen, formats checked, each frame's job decided and the event drive rendered."""
+    """Cameras chosen, formats checked, each frame's job decided (``planning``: on forked
+    processes when there are many frames) and the event drive rendered."""
     r, cmap, params = checked.rig, checked.class_map, checked.params
     t0 = time.perf_counter()
-    plan = plan_cameras(stage, scene.town, scene.lanes, scene.ground, r,
-                        Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg), frames=o.frames, poses=o.poses,
-                        views=checked.views,
-                        seed=o.seed, min_clearance_m=params.min_clearance_m)
+    cameras = plan_cameras(stage, scene.town, scene.lanes, scene.ground, r,
+                           Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg), frames=o.frames, poses=o.poses,
+                           views=checked.views, seed=o.seed, min_clearance_m=params.min_clearance_m)
     known_formats = available_formats(pm.registry("dataset_formats"))
-    fmt = parse_formats(o.formats, plan.stereo, known_formats)
-    if cmap is not None and cmap.ego:
-        plan = with_ego_lanes(plan, scene.lanes, scene.lane_width)
-        lane_xy = ego_lane_points(plan)
-    else:
-        lane_xy = [None] * len(plan.poses)
+    fmt = parse_formats(o.formats, cameras.stereo, known_formats)
+    mesh, table = scene.mesh, None
+    if o.randomize:
+        ranges = checked.ranges
+        mesh, table = LookTable.split(mesh, stage.parent, tuple(ranges.verge_surfaces) + tuple(ranges.shoulder_surfaces)
+                                      + ("pothole_wet",))
+    chained = chain_lanes(scene.lanes) if cmap is not None and cmap.ego else None
     t1 = time.perf_counter()
-    mesh, jobs = frame_jobs(plan, scene.mesh, params, stage, o.seed, lane_xy, o.randomize, checked.ranges)
-    phases = {**scene.phases, "view_sampling": t1 - t0, "randomize": time.perf_counter() - t1}
+    planner = FramePlanner(cameras, params, o.seed, table, checked.ranges, chained, scene.lane_width)
+    plan, jobs, phases = plan_all(planner, cameras.frames)
+    phases = {**scene.phases, "cameras": t1 - t0, **phases, "planning": time.perf_counter() - t1}
     ctx = RenderContext(f"{os.getpid()}-{time.time_ns()}", scene.renderer, mesh, params, cmap, scene.lane_width,
                         "normal" in fmt)
     drive = checked.drive
@@ -202,37 +206,6 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
             raise RoadtwinError(f"{stage}: --events drives along a lane, but the stage has no driving lane centerlines")
         drive = drive.start(scene.renderer, mesh, params, scene.lanes, scene.ground(), o.seed, r)
     return FramePlan(plan, fmt, known_formats, mesh, jobs, ctx, drive, phases)
-
-
-def frame_jobs(plan: CameraPlan, mesh, params, stage: Path, seed: int, lane_xy: list, randomize: bool,
-               ranges: Ranges | None = None):
-    """(mesh, one FrameJob per camera). With ``randomize`` each frame draws its look and camera
-    model from (seed, i) alone, so every executor renders the same frames; the mesh then gets the
-    look table's split materials. ``ranges``: what the draws sample from (default ``Ranges()``)."""
-    cams = [Camera(plan.intrinsics, p) for p in plan.poses]
-    if plan.stereo:
-        cams = [StereoCamera(c, plan.baseline_m) for c in cams]
-    table = None
-    if randomize:
-        ranges = ranges or Ranges()
-        mesh, table = LookTable.split(mesh, stage.parent, tuple(ranges.verge_surfaces) + tuple(ranges.shoulder_surfaces)
-                                      + ("pothole_wet",))
-    jobs = []
-    for i, cam in enumerate(cams):
-        record: dict = {}
-        if plan.view_records:
-            record["view"] = plan.view_records[i]
-        if plan.lane_of and plan.lane_of[i] is not None:
-            lane, s = plan.lane_of[i]
-            record.setdefault("view", {})["ego_lane"] = {"lane": lane.id, "s_m": round(s, 3)}
-        if table is not None:
-            fr = draw(seed, i, base=params, ranges=ranges)
-            look = table.look(fr.look)
-            record["randomization"] = {**fr.as_dict(), "applied": look.applied}
-            jobs.append(FrameJob(i, cam, check_params(fr.render, "render"), look, fr.effects, lane_xy[i], record))
-        else:
-            jobs.append(FrameJob(i, cam, params, None, None, lane_xy[i], record))
-    return mesh, jobs
 
 
 def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedOptions, frames: FramePlan,

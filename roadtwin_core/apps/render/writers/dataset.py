@@ -39,7 +39,7 @@ from .images import (colorize_instances, colorize_labels, colorize_normals, colo
                      write_contact_sheet, write_image)
 from .registry import WRITERS
 
-__all__ = ["DatasetWriter", "EncodedFrame", "WrittenFrame"]
+__all__ = ["DatasetWriter", "EncodedFrame", "WrittenFrame", "meta_json"]
 
 
 @dataclass
@@ -263,7 +263,18 @@ class DatasetWriter:
             "events": self.events_meta,
             **self.info, **(extra or {}),
         }
-        (root / "meta.json").write_text(json.dumps(meta, indent=1))
+        (root / "meta.json").write_text(meta_json(meta))
         if self.previews:
             write_contact_sheet(root / "preview.png", self.previews)
         return meta
+
+
+def meta_json(meta: dict) -> str:
+    """``meta`` as JSON indented by one space, but each frame's record on one line. Why: Python
+    indents with its pure-Python encoder (~0.3 s for 3,000 frames on a fast core, a tenth of a
+    GPU render); a frame a line goes through the C encoder and still reads and diffs by frame."""
+    placeholder = "\0frames\0"
+    head = json.dumps({**meta, "frames": placeholder}, indent=1)
+    frames = meta.get("frames") or []
+    body = "[\n" + ",\n".join("  " + json.dumps(f) for f in frames) + "\n ]" if frames else "[]"
+    return head.replace(json.dumps(placeholder), body, 1)
