@@ -85,7 +85,22 @@ class CameraSensor(MountedSensor):
         cams = [self.camera_at(state, t) for t in times]
         views = [StereoCamera(c, p.baseline_m) for c in cams] if self.stereo else cams
         mid_k = len(cams) // 2
-        if p.blur == "render":
+        images = self._exposed_on_device(world, cams, views, mid_k) if p.blur == "reproject" else None
+        if images is None:
+            images = self._exposed_on_host(world, cams, views, mid_k)
+        rgb, rgb_right, mid = images
+        out = {"t": state.t, "intrinsics": self.intrinsics, "subframes": len(cams), "exposure_s": p.exposure_s,
+               "cam_to_world": cams[mid_k].cam_to_world, "semantic": mid["semantic"], "instance": mid["instance"],
+               "depth": mid["depth"], "rgb": rgb}
+        if self.stereo:
+            out["rgb_right"] = rgb_right
+            out["baseline_m"] = p.baseline_m
+        return out
+
+    def _exposed_on_host(self, world, cams: list, views: list, mid_k: int) -> tuple:
+        """(8-bit left image, right image or None, the middle frame's labels): rendered, blurred
+        (``blur``: the sub-frames rendered, or the middle one reprojected) and developed here."""
+        if self.params.blur == "render":
             frames = list(world.render(views))
             mid = frames[mid_k]
             left = exposure_mean([f.rgb for f in frames])
@@ -98,13 +113,22 @@ class CameraSensor(MountedSensor):
             left = reproject_blur(mid.rgb, mid.depth, cams[mid_k], cams)
             right = reproject_blur(eyes[1].rgb, eyes[1].depth, views[mid_k].right, [v.right for v in views]) \
                 if self.stereo else None
-        out = {"t": state.t, "intrinsics": self.intrinsics, "subframes": len(cams), "exposure_s": p.exposure_s,
-               "cam_to_world": mid.camera.cam_to_world, "semantic": mid.semantic, "instance": mid.instance,
-               "depth": mid.depth, "rgb": self._develop(left)}
+        labels = {"semantic": mid.semantic, "instance": mid.instance, "depth": mid.depth}
+        return self._develop(left), (self._develop(right) if self.stereo else None), labels
+
+    def _exposed_on_device(self, world, cams: list, views: list, mid_k: int) -> tuple | None:
+        """As :meth:`_exposed_on_host` with the middle frames reprojected, developed by the
+        renderer on its device (``World.exposed``: the same blur, tone curve and read noise, other
+        noise numbers, from a seed this camera's generator draws for each eye), or None."""
+        if not getattr(world, "exposes", lambda: False)():
+            return None
+        eyes = [(cams[mid_k], [c.cam_to_world for c in cams], True)]
         if self.stereo:
-            out["rgb_right"] = self._develop(right)
-            out["baseline_m"] = p.baseline_m
-        return out
+            eyes.append((views[mid_k].right, [v.right.cam_to_world for v in views], False))
+        exposed = world.exposed([
+            {"camera": cam, "subframes": subs, "labels": labels, "read_noise": self.params.read_noise, "far_m": FAR_M,
+             "seed": int(self.rng.integers(2**31))} for cam, subs, labels in eyes])
+        return exposed[0]["rgb8"], exposed[1]["rgb8"] if self.stereo else None, exposed[0]
 
     def _develop(self, linear: np.ndarray) -> np.ndarray:
         """The exposure's mean linear image -> 8-bit, with read noise. Element by element, so the

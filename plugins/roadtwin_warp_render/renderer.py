@@ -150,6 +150,38 @@ class WarpRenderer:
                 progress(i + 1, len(cameras))
         return {key: np.concatenate([c[key] for c in chunks]) for key in ("x", "y", "t", "p")}, sim.params()
 
+    def render_exposed(self, scene, exposures: Sequence[dict], params: RenderParams | None = None,
+                       any_device: bool = False) -> list[dict] | None:
+        """A drive camera's exposures developed on the device (``exposure.py``: motion blur by
+        reprojection, tone curve, read noise; only 8-bit images travel). A request: ``camera`` (the
+        middle sub-frame's, mono), ``subframes`` (each sub-frame's cam_to_world, in order),
+        ``read_noise`` (DN), ``seed``, ``far_m`` (where sky pixels are put), ``labels`` (True: also
+        depth, semantic, instance). Returns per request ``{"rgb8", ...}``, or None on a CPU device
+        (unless ``any_device``): the caller develops on the host."""
+        from .exposure import develop_exposure
+
+        params = dataclasses.replace(check_params(params or RenderParams(), "renderer warp"), shade=True)
+        if not (any_device or self.prepare(scene, params).device.startswith("cuda")):
+            return None
+        prepared, cams, params, light, material_look = self._setup(scene, [e["camera"] for e in exposures], params,
+                                                                   None)
+        rc = _rc()
+        import warp as wp
+
+        rc.set_material_look(prepared.rs.textures, *material_look, prepared.rs.device)
+        out = []
+        for e, cam in zip(exposures, cams):
+            k = cam.intrinsics
+            c, gb = self._view(prepared, cam, params, light, slot=0)
+            rgb8 = wp.empty(k.width * k.height * 3, dtype=wp.uint8, device=gb.rgb.device)
+            develop_exposure(gb, c, cam.cam_to_world, list(e["subframes"]), e["far_m"], e["read_noise"], e["seed"], rgb8)
+            res = {"rgb8": rgb8.numpy().reshape(k.height, k.width, 3)}
+            if e.get("labels"):
+                g = gb.numpy(("depth", "dist", "cls", "inst", "face"))
+                res.update(depth=g["depth"], semantic=_semantic(g, params), instance=g["inst"])
+            out.append(res)
+        return out
+
     def _setup(self, scene, cameras, params, look):
         params = check_params(params or RenderParams(), "renderer warp")
         if params.weather not in WEATHERS:
@@ -262,10 +294,7 @@ class WarpRenderer:
                 right = cam.right
                 prepared.rs.stereo(c, right.position - prepared.origin, cam.baseline, gb)
             out = gb.numpy(("depth", "dist", "normal", "cls", "inst", "face"))
-            semantic = out["cls"].astype(np.uint8)
-            far = (out["face"] >= 0) & (out["dist"] > params.label_distance_m)
-            semantic[far] = 255
-            frame = Frame(index=k, camera=left, depth=out["depth"], normal=out["normal"], semantic=semantic,
+            frame = Frame(index=k, camera=left, depth=out["depth"], normal=out["normal"], semantic=_semantic(out, params),
                           instance=out["inst"], face=out["face"])
             if params.shade:
                 frame.rgb = gb.numpy(("rgb",))["rgb"]
@@ -292,6 +321,13 @@ class WarpRenderer:
         if params.shade:
             rs.shade(c, light, gb)
         return c, gb
+
+
+def _semantic(gbuffer: dict, params: RenderParams) -> np.ndarray:
+    """Class ids of a G-buffer on the host; surfaces farther than the label distance: 255 (ignore)."""
+    semantic = gbuffer["cls"].astype(np.uint8)
+    semantic[(gbuffer["face"] >= 0) & (gbuffer["dist"] > params.label_distance_m)] = 255
+    return semantic
 
 
 def _has_open3d() -> bool:

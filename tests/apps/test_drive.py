@@ -421,3 +421,44 @@ def test_many_routes_on_a_local_ray_cluster_same_bytes_as_serial(town, tiny_rig,
         ray.shutdown()
     assert res["executor"] == "ray"
     assert _files(tmp_path / "ray") == _files(serial_drives[0])
+
+
+def test_cameras_developed_on_the_renderers_device_are_the_host_cameras(town, tmp_path, monkeypatch):
+    """A drive's stereo pair developed by the renderer where it renders (on CUDA; forced here on
+    the CPU device) shows what the host's camera model shows: the same labels, each eye's image
+    within rounding of the host's (read noise off: the two paths draw other numbers)."""
+    from roadtwin_core.apps.drive import DriveOptions, run_drive
+    from roadtwin_core.apps.drive.world import World
+
+    rig = tmp_path / "stereo.toml"
+    rig.write_text('name = "pair"\n[[sensor]]\nname = "stereo"\ntype = "stereo"\nrate_hz = 10\nxyz = [0.6, 0.06, 0.95]\n'
+                   'ypr_deg = [0.0, -12.0, 0.0]\n[sensor.params]\nwidth = 96\nheight = 64\nhfov_deg = 80.0\n'
+                   'read_noise = 0.0\nexposure_s = 0.02\n')
+    opt = DriveOptions(route=f"lane:{LANE}", length_m=None, duration_s=0.45, speed_kmh=30.0, rig=rig)
+    from roadtwin_warp_render.renderer import WarpRenderer
+
+    developed = []
+    render_exposed = WarpRenderer.render_exposed
+    monkeypatch.setattr(WarpRenderer, "render_exposed", lambda self, *a, **k: developed.append(1) or
+                        render_exposed(self, *a, **k))
+    outs = {}
+    for device in (False, True):
+        monkeypatch.setattr(World, "expose_on_any_device", device)
+        outs[device] = tmp_path / f"device_{device}"
+        run_drive(town, outs[device], opt, pm=PluginManager())
+
+    def images(out, topic):
+        msgs = _bag_messages(out, topic)
+        return [np.frombuffer(m.data.tobytes(), np.uint8).reshape(m.height, m.width, -1).astype(int) for _, m in msgs]
+
+    for topic in ("/stereo/left/image_raw", "/stereo/right/image_raw", "/stereo/semantic", "/stereo/instance", "/stereo/depth"):
+        host, dev = images(outs[False], topic), images(outs[True], topic)
+        assert len(host) == len(dev) >= 4, topic
+        for a, b in zip(host, dev):
+            if topic.endswith("image_raw"):
+                assert np.abs(a - b).max() <= 2 and np.abs(a - b).mean() < 0.1, topic
+            else:
+                np.testing.assert_array_equal(a, b)
+    left, right = images(outs[True], "/stereo/left/image_raw"), images(outs[True], "/stereo/right/image_raw")
+    assert np.abs(left[0] - right[0]).mean() > 1.0           # the right eye is its own view
+    assert len(developed) == len(left)                        # one call a pair, on the forced drive only

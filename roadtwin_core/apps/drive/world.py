@@ -21,6 +21,8 @@ _WARP_KERNEL = None
 
 
 class World:
+    expose_on_any_device = False       # tests: cameras developed by the renderer on a CPU device too (exposes)
+
     def __init__(self, render_mesh, renderer, render_params) -> None:
         self.mesh = render_mesh
         self.renderer = renderer
@@ -84,6 +86,21 @@ class World:
                 shots[0].rgb_right, shots[0].right_camera = shots[1].rgb, eyes[1]
             frames.append(shots[0])
         return frames
+
+    def exposes(self) -> bool:
+        """Whether cameras are developed where they render (:meth:`exposed`): a renderer with
+        ``render_exposed`` (the warp renderer's) on a CUDA device, and no vehicles to draw (they
+        are drawn on the host, before the blur)."""
+        if self.traffic is not None or not hasattr(self.renderer, "render_exposed"):
+            return False
+        if self._prepared is None:
+            self._prepared = self.renderer.prepare(self.mesh, self.render_params)
+        return self.expose_on_any_device or str(getattr(self._prepared, "device", "")).startswith("cuda")
+
+    def exposed(self, requests: list[dict]) -> list[dict]:
+        """Camera exposures developed by the renderer (see the warp renderer's ``render_exposed``)."""
+        self.renders += len(requests)
+        return self.renderer.render_exposed(self._prepared, requests, self.render_params, any_device=True)
 
     def _draw_vehicles(self, frame, camera, boxes) -> None:
         """The vehicles in front of the town, z-buffered against the frame's depth."""

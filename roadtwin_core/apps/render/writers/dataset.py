@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import os
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Sequence
@@ -96,6 +97,7 @@ class DatasetWriter:
         self.root = Path(self.root)
         self.frames_meta: list[dict] = []
         self.previews: list[dict[str, np.ndarray]] = []
+        self._sheet: Future | None = None     # preview.png being drawn, once its rows are in
         self.events_meta: dict | None = None
         self.palette = palette(len(self.classes), self.classes)
         # every defect type is a COCO category, seen or not (stable ids across renders)
@@ -216,6 +218,10 @@ class DatasetWriter:
         self.frames_meta.append(entry)
         if written.thumbs is not None and len(self.previews) < self.preview_frames:
             self.previews.append(written.thumbs)
+            if len(self.previews) == self.preview_frames:      # drawn while the other frames render
+                pool = ThreadPoolExecutor(1, thread_name_prefix="contact-sheet")
+                self._sheet = pool.submit(write_contact_sheet, self.root / "preview.png", list(self.previews))
+                pool.shutdown(wait=False)
 
     def _thumbs(self, frame: Frame, rgb8: np.ndarray) -> dict[str, np.ndarray]:
         valid = frame.depth > 0
@@ -264,7 +270,9 @@ class DatasetWriter:
             **self.info, **(extra or {}),
         }
         (root / "meta.json").write_text(meta_json(meta))
-        if self.previews:
+        if self._sheet is not None:
+            self._sheet.result()
+        elif self.previews:
             write_contact_sheet(root / "preview.png", self.previews)
         return meta
 
