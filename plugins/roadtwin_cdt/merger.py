@@ -24,6 +24,20 @@ from roadtwin_core.remesh import even_segment_mesh
 
 from .clip import DefectPiece, clip_defect
 
+STEINER_PER_VERTEX = 20      # Triangle's -S bound on the points a ring's refinement may add, per input vertex
+
+
+def refine(tri_in: dict, switches: str) -> dict | None:
+    """``triangle.triangulate`` with the Steiner points bounded; None where the bound is reached.
+    Why: a footprint loop whose vertex lies on its own next segment (a zero input angle, as
+    pixel-traced photo cracks clipped to a segment can have) sends Ruppert's refinement on
+    forever: a highway compose grew to 60 GB. Normal rings add a few points per vertex; one that
+    reaches the bound is left to the caller's coarser triangulation (what Triangle made of it by
+    then has slivers of zero area at the degenerate vertex)."""
+    bound = STEINER_PER_VERTEX * len(tri_in["vertices"]) + 1000
+    out = triangle.triangulate(tri_in, f"{switches}S{bound}")
+    return None if len(out["vertices"]) - len(tri_in["vertices"]) >= bound else out
+
 
 @dataclass
 class CDTParams:
@@ -260,7 +274,7 @@ def ring_cdt(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[DefectP
     """Constrained Delaunay fill of (cut region) minus (defect pieces). Returns faces (global ids)
     and the Steiner points Triangle added inside the ring (never on its rim)."""
     tri_in, ids, _, _ = _ring_input(all_xy, removed_faces, pieces, piece_ids, border_line)
-    out = triangle.triangulate(tri_in, f"pq{min_angle}YY")
+    out = refine(tri_in, f"pq{min_angle}YY") or triangle.triangulate(tri_in, "pYY")
     out_v = out["vertices"]
     out_segs = np.sort(out.get("segments", np.zeros((0, 2), dtype=np.int64)), axis=1)
     # Triangle only adds a vertex on a segment where two segments cross: a loop crossing the rim.
@@ -281,10 +295,13 @@ def ring_cdt_split(all_xy: np.ndarray, removed_faces: np.ndarray, pieces: list[D
     guarantee needs segment splitting). Here Triangle splits what it needs. Returns
     (faces in global ids, new points (global ids from len(all_xy) on), {(a, b): new ids
     along the loop edge a -> b (a < b)}, split rim edges (global ids), blocked) where
-    ``blocked`` says an edge on the segment's own border was split (it may not be).
+    ``blocked`` says an edge on the segment's own border was split (it may not be), or the
+    refinement reached its bound (:func:`refine`): the caller keeps its ring unsplit.
     """
     tri_in, ids, key, loop_edges = _ring_input(all_xy, removed_faces, pieces, piece_ids, border_line)
-    out = triangle.triangulate(tri_in, f"pq{min_angle}")
+    out = refine(tri_in, f"pq{min_angle}")
+    if out is None:                  # no end to splitting here: keep the ring without split segments
+        return None, None, {}, np.zeros((0, 2), np.int64), True
     out_v = out["vertices"]
     n_in = len(ids)
     if not np.array_equal(out_v[:n_in], all_xy[ids]):

@@ -5,7 +5,9 @@ stays byte-identical and no temporary directory is left beside it.
 The bad layouts are small USD files built here with pxr (or written as text); a good 20 m x 7 m
 one-segment layout is composed once into OUT first (flat surface, no preview: about a second).
 Argument-parsing errors that click itself reports (``--seed abc``, unknown options, missing
-arguments) follow the same rule: one line, exit 2.
+arguments) follow the same rule: one line, exit 2. The cases go through the CLI's entry point in
+this process (``cli_run.run_main``); two of them, the usage errors and the output-is-a-file case
+also through a fresh interpreter, as a user runs it, and every case does with ``-m slow``.
 """
 from __future__ import annotations
 
@@ -16,6 +18,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_run import run_main
 from pxr import Sdf, Usd, UsdGeom
 
 REPO = Path(__file__).resolve().parents[2]
@@ -27,6 +30,13 @@ def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k not in ("ROADTWIN_PLUGINS", "ROADTWIN_DEBUG")}
     return subprocess.run([sys.executable, "-m", "roadtwin_core.cli", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=120)
+
+
+def run_here(*args: str, cwd: Path, capsys, monkeypatch) -> subprocess.CompletedProcess:
+    """:func:`run_cli` through the entry point in this process (``cli_run.run_main``)."""
+    monkeypatch.chdir(cwd)
+    code, out, err = run_main(list(args), capsys, monkeypatch)
+    return subprocess.CompletedProcess(list(args), code, out, err)
 
 
 def write_layout(path: Path, *, points=None, faces=None, counts=None, up: str = "Z", mpu: float = 1.0,
@@ -148,12 +158,26 @@ def check_one_line(r: subprocess.CompletedProcess, patterns: list[str]) -> str:
     return line
 
 
+IN_A_PROCESS_BY_DEFAULT = {"missing-file", "props-fit-nothing"}
+
+
 @pytest.mark.parametrize("args,patterns", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
-def test_bad_input_keeps_earlier_output(work, args, patterns):
+def test_bad_input_keeps_earlier_output(work, args, patterns, capsys, monkeypatch):
+    keeps_earlier_output(work, lambda: run_here(*args, "-o", "OUT", cwd=work, capsys=capsys, monkeypatch=monkeypatch),
+                         patterns)
+
+
+@pytest.mark.parametrize("args,patterns", [
+    pytest.param(*c[1:], id=c[0], marks=() if c[0] in IN_A_PROCESS_BY_DEFAULT else pytest.mark.slow) for c in CASES])
+def test_bad_input_in_a_fresh_process_keeps_earlier_output(work, args, patterns):
+    keeps_earlier_output(work, lambda: run_cli(*args, "-o", "OUT", cwd=work), patterns)
+
+
+def keeps_earlier_output(work: Path, run, patterns: list[str]) -> None:
+    """``run()`` (a bad command) prints its one line and leaves OUT and the folder as they were."""
     before = snapshot(work / "OUT")
     listing = sorted(p.name for p in work.iterdir())
-    r = run_cli(*args, "-o", "OUT", cwd=work)
-    check_one_line(r, patterns)
+    check_one_line(run(), patterns)
     assert snapshot(work / "OUT") == before, "the earlier output changed"
     assert sorted(p.name for p in work.iterdir()) == listing, "files were left beside the output"
 
@@ -163,8 +187,8 @@ NO_OUTPUT = {"missing-file", "bow-tie", "nan-surface", "too-many-defects", "prop
 
 @pytest.mark.parametrize("args,patterns", [c[1:] for c in CASES if c[0] in NO_OUTPUT],
                          ids=[c[0] for c in CASES if c[0] in NO_OUTPUT])
-def test_bad_input_creates_no_output(work, args, patterns):
-    r = run_cli(*args, "-o", "fresh/OUT2", cwd=work)
+def test_bad_input_creates_no_output(work, args, patterns, capsys, monkeypatch):
+    r = run_here(*args, "-o", "fresh/OUT2", cwd=work, capsys=capsys, monkeypatch=monkeypatch)
     check_one_line(r, patterns)
     assert not (work / "fresh" / "OUT2").exists()
     assert not (work / "fresh").exists() or not any((work / "fresh").iterdir())

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_run import run_main
 
 REPO = Path(__file__).resolve().parents[2]
 XODR = REPO / "tests/data/opendrive/curved_road_default.xodr"
@@ -561,23 +562,6 @@ def _digest(path: Path) -> str:
 
 def _listing(folder: Path) -> set[str]:
     return {str(q.relative_to(folder)) for q in folder.rglob("*")}
-
-
-def run_main(argv: list[str], capsys, monkeypatch) -> tuple[int, str, str]:
-    """``roadtwin ARGV`` in-process through the real entry point (its error mapping included)."""
-    from roadtwin_core import cli
-
-    monkeypatch.delenv("ROADTWIN_DEBUG", raising=False)
-    monkeypatch.delenv("ROADTWIN_PLUGINS", raising=False)
-    monkeypatch.setattr(sys, "argv", ["roadtwin", *argv])
-    capsys.readouterr()
-    try:
-        cli.main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.mark.parametrize("args, expect, names", [*IMPORT, *RENDER, *SWEEP, *PLAN, *RECON])

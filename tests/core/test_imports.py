@@ -101,6 +101,7 @@ LAZY_INTERNAL: dict[tuple[str, str], str] = {
         _NEEDS_WARP + "; and warp must be started quietly (start_warp) before its kernels are defined",
     ("plugins/roadtwin_warp_render/renderer.py", "roadtwin_warp_render.event_kernels"): _NEEDS_WARP,
     ("plugins/roadtwin_warp_render/renderer.py", "roadtwin_warp_render.post"): _NEEDS_WARP,
+    ("plugins/roadtwin_warp_render/renderer.py", "roadtwin_warp_render.exposure"): _NEEDS_WARP,
 }
 
 
