@@ -42,6 +42,7 @@ import dataclasses
 import functools
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -183,16 +184,19 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
     processes when there are many frames) and the event drive rendered."""
     r, cmap, params = checked.rig, checked.class_map, checked.params
     t0 = time.perf_counter()
-    cameras = plan_cameras(stage, scene.town, scene.lanes, scene.ground, r,
-                           Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg), frames=o.frames, poses=o.poses,
-                           views=checked.views, seed=o.seed, min_clearance_m=params.min_clearance_m)
-    known_formats = available_formats(pm.registry("dataset_formats"))
-    fmt = parse_formats(o.formats, cameras.stereo, known_formats)
     mesh, table = scene.mesh, None
-    if o.randomize:
-        ranges = checked.ranges
-        mesh, table = LookTable.split(mesh, stage.parent, tuple(ranges.verge_surfaces) + tuple(ranges.shoulder_surfaces)
-                                      + ("pothole_wet",))
+    with ThreadPoolExecutor(1, thread_name_prefix="look-table") as side:
+        # --randomize: the look table's variant textures decode while the cameras are chosen and the
+        # ground sampler is built (PNG decoding and numpy let go of the GIL)
+        surfaces = tuple(checked.ranges.verge_surfaces) + tuple(checked.ranges.shoulder_surfaces) + ("pothole_wet",)
+        split = side.submit(LookTable.split, mesh, stage.parent, surfaces) if o.randomize else None
+        cameras = plan_cameras(stage, scene.town, scene.lanes, scene.ground, r,
+                               Intrinsics.from_fov(r.width, r.height_px, r.hfov_deg), frames=o.frames, poses=o.poses,
+                               views=checked.views, seed=o.seed, min_clearance_m=params.min_clearance_m)
+        known_formats = available_formats(pm.registry("dataset_formats"))
+        fmt = parse_formats(o.formats, cameras.stereo, known_formats)
+        if split is not None:
+            mesh, table = split.result()
     chained = chain_lanes(scene.lanes) if cmap is not None and cmap.ego else None
     t1 = time.perf_counter()
     planner = FramePlanner(cameras, params, o.seed, table, checked.ranges, chained, scene.lane_width)
