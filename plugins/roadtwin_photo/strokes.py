@@ -95,7 +95,11 @@ def stroke_outline(foot: np.ndarray, grid: OrthoGrid, gap_m: float, fill_m2: flo
     if geom.is_empty:
         return None
     close = t / 2
-    geom = geom.buffer(close, join_style="mitre").buffer(-close, join_style="mitre")
+    # texel squares that touch at a corner meet in zero-length edges, where GEOS's mitre offset
+    # raises a floating-point flag that shapely reports as numpy's RuntimeWarning on every crack
+    # of a `reconstruct photos` run; the outline below is checked valid before it is used
+    with np.errstate(divide="ignore", invalid="ignore"):
+        geom = geom.buffer(close, join_style="mitre").buffer(-close, join_style="mitre")
     width = max(gap_m, t)
     for _ in range(64):
         geom = geom.buffer(0)

@@ -11,7 +11,7 @@ import pytest
 
 import roadtwin_defects
 import roadtwin_lookalikes
-from cli_run import one_line, run_cli
+from cli_run import REPO, one_line, run_cli
 from photo_scene import SURVEY, H, W, render_photo, save_pair
 from roadtwin_core import PluginManager, RoadtwinError
 from roadtwin_core.apps.reconstruct import PhotoInputs, check_photo_inputs
@@ -105,3 +105,18 @@ def test_look_alikes_are_not_defect_classes(photos):
     got = check_photo_inputs(PhotoInputs([photos / "images"], photos / "labels"), types)
     assert got.classes == {2: ("crack", "crack"), 3: ("pothole", "pothole")}
     assert got.rig["name"] == "survey" and got.rig["pitch_deg"] == SURVEY.pitch_deg and len(got.images) == 1
+
+
+REAL = REPO.parent / "shared/data/road_defects_br/train_full"
+# two train frames: cracks that touch at texel corners (the second), and assets to write (the first)
+REAL_FRAMES = [REAL / "images" / f"{stem}.jpg" for stem in ("1075621_DF_251_251BDF0530_02002",
+                                                              "1075627_DF_251_251BDF0530_02013")]
+
+
+@pytest.mark.skipif(not all(f.is_file() for f in REAL_FRAMES),
+                    reason="../shared/data/road_defects_br/train_full is not beside the repository")
+def test_real_crack_frames_reconstruct_with_nothing_on_stderr(tmp_path):
+    """What a user sees of a good run is the summary: no numpy warning from the cracks' outlines."""
+    r = run_cli("reconstruct", "photos", *REAL_FRAMES, "--labels", REAL / "labels", "-o", tmp_path / "lib")
+    assert r.returncode == 0, r.stderr
+    assert r.stderr == "" and "crack" in r.stdout, r.stderr
