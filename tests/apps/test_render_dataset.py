@@ -717,8 +717,12 @@ def test_frames_planned_in_forked_blocks_write_what_planning_here_writes(road, p
     here = render("here")
     monkeypatch.setattr(planning, "PARALLEL_FROM", 1)
     monkeypatch.setattr(planning, "BLOCK", 2)
-    monkeypatch.setattr(planning.os, "sched_getaffinity", lambda pid: {0, 1, 2})
+    monkeypatch.setattr(planning, "_usable_cores", lambda: 3)
+    pools = []
+    get_context = planning.multiprocessing.get_context
+    monkeypatch.setattr(planning.multiprocessing, "get_context", lambda method: pools.append(method) or get_context(method))
     forked = render("forked")
+    assert pools == ["fork"]                                    # the blocks went to a forked pool
     assert_same_dataset(here, forked)
     frames = json.loads((forked / "meta.json").read_text())["frames"]
     assert [f["index"] for f in frames] == list(range(7))

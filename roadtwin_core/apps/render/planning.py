@@ -85,6 +85,10 @@ def frame_jobs(plan: CameraPlan, start: int, params, seed: int, lane_xy: list, t
     return jobs
 
 
+def _usable_cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def _planned_block(start: int, stop: int):
     return _PLANNER.block(start, stop)
 
@@ -97,8 +101,8 @@ def plan_all(planner: FramePlanner, frames: int, *, processes: int | None = None
     global _PLANNER
     parallel_from = PARALLEL_FROM if parallel_from is None else parallel_from
     blocks = [(a, min(a + BLOCK, frames)) for a in range(0, frames, BLOCK)] or [(0, 0)]
-    n_proc = min(processes or len(os.sched_getaffinity(0)), len(blocks))
-    if frames < parallel_from or n_proc < 2:
+    n_proc = min(processes or _usable_cores(), len(blocks))
+    if frames < parallel_from or n_proc < 2 or multiprocessing.current_process().daemon:   # a pool's worker: no children
         parts = [planner.block(a, b) for a, b in blocks]
     else:
         _PLANNER = planner
