@@ -9,6 +9,9 @@ graphics: exact for a static scene but at occlusion edges, where a few pixels of
 what the middle frame hides): one render a frame instead of one a sub-frame, the renderer being
 the drive's cost. ``blur = "render"`` renders every sub-frame. Labels, depth and instance ids are
 the middle sub-frame's (odd counts). Sensor noise: Gaussian read noise on the tone-mapped image.
+With ``reproject`` on a renderer that develops where it renders (the warp renderer on CUDA:
+``World.exposes``), the blur, tone curve and noise run there and only 8-bit images come back
+(the same model; other noise numbers, from a seed this camera's generator draws for each eye).
 """
 from __future__ import annotations
 
