@@ -738,3 +738,31 @@ def test_meta_json_puts_a_frame_a_line_and_reads_back_equal():
     assert json.loads(text) == meta
     assert [json.loads(line.strip().rstrip(",")) for line in text.splitlines() if '"index"' in line] == meta["frames"]
     assert json.loads(meta_json({**meta, "frames": []})) == {**meta, "frames": []}
+
+
+class _Unplannable:
+    """Camera source whose every block fails; the first block fails last."""
+
+    frames = 40
+
+    def block(self, start, stop):
+        import time
+
+        from roadtwin_core.errors import RoadtwinError
+
+        if start == 0:
+            time.sleep(0.5)
+        raise RoadtwinError(f"view {start}: could not aim a view at a defect in 60 tries")
+
+
+def test_a_frame_that_cannot_be_planned_is_named_as_when_planned_here(monkeypatch):
+    """On the forked pool the error is the first bad frame's, as in one process, whichever block
+    fails first."""
+    import roadtwin_core.apps.render.planning as planning
+    from roadtwin_core.errors import RoadtwinError
+
+    monkeypatch.setattr(planning, "BLOCK", 10)
+    planner = planning.FramePlanner(_Unplannable(), None, 0)
+    for processes in (1, 4):
+        with pytest.raises(RoadtwinError, match=r"^view 0: "):
+            planning.plan_all(planner, 40, processes=processes, parallel_from=1)

@@ -89,8 +89,8 @@ def _usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
-def _planned_block(start: int, stop: int):
-    return _PLANNER.block(start, stop)
+def _planned_block(block: tuple[int, int]):
+    return _PLANNER.block(*block)
 
 
 def plan_all(planner: FramePlanner, frames: int, *, processes: int | None = None,
@@ -108,7 +108,8 @@ def plan_all(planner: FramePlanner, frames: int, *, processes: int | None = None
         _PLANNER = planner
         try:
             with multiprocessing.get_context("fork").Pool(n_proc) as pool:
-                parts = pool.starmap(_planned_block, blocks, chunksize=1)
+                # in order: a bad frame's error is the first one's, as when planned here
+                parts = list(pool.imap(_planned_block, blocks))
         finally:
             _PLANNER = None
     plans = [p for p, _, _ in parts]
