@@ -87,12 +87,14 @@ def relative_poses(mid_cam_to_world: np.ndarray, cams_to_world: list[np.ndarray]
 
 
 def develop_exposure(gb, cam: Cam, mid_cam_to_world: np.ndarray, cams_to_world: list[np.ndarray], far_m: float,
-                     read_noise: float, seed: int, out: wp.array) -> None:
-    """Queue the kernel on the G-buffer ``gb``'s device: 8-bit RGB of the exposure into ``out``."""
+                     read_noise: float, seed: int) -> np.ndarray:
+    """8-bit RGB (H, W, 3) of the exposure, developed on the G-buffer ``gb``'s device and copied to the host."""
     rel, moved = relative_poses(mid_cam_to_world, cams_to_world)
     dev = gb.rgb.device
+    out = wp.empty(cam.width * cam.height * 3, dtype=wp.uint8, device=dev)
     wp.launch(exposure_kernel, dim=cam.width * cam.height, device=dev,
               inputs=[gb.rgb, gb.depth, cam, wp.array(rel, dtype=wp.mat44, device=dev),
                       wp.array(moved, dtype=wp.int32, device=dev), len(cams_to_world), float(far_m),
                       float(read_noise), int(seed) & 0x7FFFFFFF],
               outputs=[out])
+    return out.numpy().reshape(cam.height, cam.width, 3)

@@ -165,17 +165,12 @@ class WarpRenderer:
             return None
         prepared, cams, params, light, material_look = self._setup(scene, [e["camera"] for e in exposures], params,
                                                                    None)
-        rc = _rc()
-        import warp as wp
-
-        rc.set_material_look(prepared.rs.textures, *material_look, prepared.rs.device)
+        _rc().set_material_look(prepared.rs.textures, *material_look, prepared.rs.device)
         out = []
         for e, cam in zip(exposures, cams):
-            k = cam.intrinsics
             c, gb = self._view(prepared, cam, params, light, slot=0)
-            rgb8 = wp.empty(k.width * k.height * 3, dtype=wp.uint8, device=gb.rgb.device)
-            develop_exposure(gb, c, cam.cam_to_world, list(e["subframes"]), e["far_m"], e["read_noise"], e["seed"], rgb8)
-            res = {"rgb8": rgb8.numpy().reshape(k.height, k.width, 3)}
+            res = {"rgb8": develop_exposure(gb, c, cam.cam_to_world, list(e["subframes"]), e["far_m"], e["read_noise"],
+                                            e["seed"])}
             if e.get("labels"):
                 g = gb.numpy(("depth", "dist", "cls", "inst", "face"))
                 res.update(depth=g["depth"], semantic=_semantic(g, params), instance=g["inst"])

@@ -38,11 +38,9 @@ def on_device(rgb, depth, mid: Camera, cams: list[Camera], read_noise: float = 0
     k = mid.intrinsics
     gb = SimpleNamespace(rgb=wp.array(rgb.reshape(-1, 3), dtype=wp.vec3, device="cpu"),
                          depth=wp.array(depth.reshape(-1), dtype=float, device="cpu"))
-    out = wp.zeros(W * H * 3, dtype=wp.uint8, device="cpu")
     cam = rc.make_cam(k.fx, k.fy, k.cx, k.cy, k.width, k.height, mid.cam_to_world)
-    exposure.develop_exposure(gb, cam, mid.cam_to_world, [c.cam_to_world for c in cams], cam_mod.FAR_M, read_noise,
-                              seed, out)
-    return out.numpy().reshape(H, W, 3)
+    return exposure.develop_exposure(gb, cam, mid.cam_to_world, [c.cam_to_world for c in cams], cam_mod.FAR_M,
+                                     read_noise, seed)
 
 
 def sub_frames(n: int = 7) -> list[Camera]:

@@ -61,12 +61,12 @@ from ...render.randomize import Ranges
 from ...render.view_sampler import chain_lanes
 from ...render.scene_look import LookTable
 from ...warp_runtime import warp_device
-from .cameras import CameraPlan, plan_cameras
+from .cameras import CameraPlan, DefectViews, plan_cameras
 from .events import EventDrive, check_events
 from . import gpu_shards
 from .options import MAX_FRAMES, RenderOptions, Rig, ViewSpec, check_range, check_rig, parse_views, resolve_rig
 from .frame_sink import FrameSink, render_in_process
-from .pipeline import RenderContext, forget, render_chunk
+from .pipeline import FrameJob, RenderContext, forget, render_chunk
 from .planning import FramePlanner, plan_all
 from .writers import DatasetWriter, available_formats, parse_formats
 
@@ -197,7 +197,9 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
         fmt = parse_formats(o.formats, cameras.stereo, known_formats)
         if split is not None:
             mesh, table = split.result()
-    chained = chain_lanes(scene.lanes) if cmap is not None and cmap.ego else None
+    chained = None
+    if cmap is not None and cmap.ego:        # the view sampler's chained lanes where it chained them
+        chained = cameras.chained if isinstance(cameras, DefectViews) else chain_lanes(scene.lanes)
     t1 = time.perf_counter()
     planner = FramePlanner(cameras, params, o.seed, table, checked.ranges, chained, scene.lane_width)
     plan, jobs, phases = plan_all(planner, cameras.frames)
