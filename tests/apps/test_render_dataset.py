@@ -729,6 +729,51 @@ def test_frames_planned_in_forked_blocks_write_what_planning_here_writes(road, p
     assert len({json.dumps(f["randomization"]) for f in frames}) == 7      # every frame drew its own look
 
 
+def test_on_a_gpu_the_finishing_processes_plan_the_frames_while_the_scene_uploads(road, pm, tmp_path, monkeypatch):
+    """On a GPU device (forced here on the CPU) the frames' blocks are planned by the finishing
+    processes, forked before the device is touched, while this process uploads the scene; the
+    dataset must be the one planned here, in one process."""
+    import os
+    import time
+
+    import roadtwin_core.apps.render.planning as planning
+    import roadtwin_core.apps.render.run as run_mod
+
+    def render(name, executor):
+        run_render(road, tmp_path / name, RenderOptions(frames=7, rig="survey", size="64x40", views="defects:0.5:clear",
+                                                        randomize=True, classmap="builtin:road_defects_br",
+                                                        formats="mmseg", executor=executor, workers=2, seed=4), pm=pm)
+        return tmp_path / name
+
+    here = render("here", "serial")
+    monkeypatch.setattr(planning, "PARALLEL_FROM", 1)
+    monkeypatch.setattr(planning, "BLOCK", 2)
+    monkeypatch.setattr(run_mod, "_on_gpu", lambda device: True)
+    pools = []
+    get_context = planning.multiprocessing.get_context
+    monkeypatch.setattr(planning.multiprocessing, "get_context", lambda method: pools.append(method) or get_context(method))
+    block, prepared_scene, log = planning.FramePlanner.block, run_mod.prepared_scene, tmp_path / "log"
+    log.mkdir()
+
+    def slow_block(self, start, stop):
+        time.sleep(0.3)
+        (log / f"block{start}").write_text(f"{os.getpid()} {time.time()}")
+        return block(self, start, stop)
+
+    def timed_upload(ctx):
+        (log / "upload").write_text(f"{os.getpid()} {time.time()}")
+        return prepared_scene(ctx)
+
+    monkeypatch.setattr(planning.FramePlanner, "block", slow_block)
+    monkeypatch.setattr(run_mod, "prepared_scene", timed_upload)
+    gpu = render("gpu", "local")
+    assert_same_dataset(here, gpu)
+    assert pools == ["fork"]                                     # one forked pool, the sink's: none for planning
+    blocks = [(int(p), float(t)) for p, t in (f.read_text().split() for f in log.glob("block*"))]
+    upload_pid, upload_at = log.joinpath("upload").read_text().split()
+    assert len(blocks) == 4 and all(pid != os.getpid() for pid, _ in blocks)
+    assert int(upload_pid) == os.getpid() and float(upload_at) < max(t for _, t in blocks)   # uploaded meanwhile
+
 def test_meta_json_puts_a_frame_a_line_and_reads_back_equal():
     from roadtwin_core.apps.render.writers.dataset import meta_json
 

@@ -74,16 +74,12 @@ class FrameRing:
         self.buf.close()
 
 
-def ring_for(jobs: list[FrameJob], workers: int) -> FrameRing | None:
-    """A ring for frames of mono cameras of one size (what the device finishes): rgb8, labels,
-    depth and instance ids, 12 bytes a pixel, with room for alignment."""
-    if not all(hasattr(j.camera, "intrinsics") for j in jobs):      # stereo pairs are not finished on the device
+def ring_for(cameras, workers: int) -> FrameRing | None:
+    """A ring for the frames of ``cameras`` (a camera plan: mono cameras of one size are what the
+    device finishes): rgb8, labels, depth and instance ids, 12 bytes a pixel, with room for alignment."""
+    if cameras.stereo:                  # stereo pairs are not finished on the device
         return None
-    sizes = {(j.camera.intrinsics.width, j.camera.intrinsics.height) for j in jobs}
-    if len(sizes) != 1:
-        return None
-    w, h = sizes.pop()
-    return FrameRing(w * h * 12 + 4096, 2 * workers + 2)
+    return FrameRing(cameras.intrinsics.width * cameras.intrinsics.height * 12 + 4096, 2 * workers + 2)
 
 
 @dataclass
@@ -95,15 +91,17 @@ class SceneDevice:
 
 
 class FrameSink:
-    """Finishes and writes frames on ``workers`` threads or forked processes, commits them in order."""
+    """Finishes and writes frames on ``workers`` threads or forked processes, commits them in order.
+    ``cameras``: the camera plan (its frame size; the frames' jobs come with :meth:`expect`)."""
 
-    def __init__(self, ctx: RenderContext, writer, jobs: list[FrameJob], workers: int, processes: bool,
+    def __init__(self, ctx: RenderContext, writer, cameras, workers: int, processes: bool,
                  report: Callable[[str, int, int], None]):
         global _SHARED, _RING
-        self.writer, self.jobs, self.report = writer, jobs, report
+        self.writer, self.report = writer, report
+        self.jobs: list[FrameJob] = []
         self.workers = max(1, int(workers))
         _SHARED = (ctx, writer)
-        _RING = ring_for(jobs, self.workers) if processes else None
+        _RING = ring_for(cameras, self.workers) if processes else None
         if processes:
             self.pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("fork"))
             self.pool.submit(int).result()      # fork every worker now, before the device is touched
@@ -116,6 +114,10 @@ class FrameSink:
         self.shares: list[dict] = []
         self.backend = self.device = None
         self.phases: dict[str, float] = {}
+
+    def expect(self, jobs: list[FrameJob]) -> None:
+        """The frames to come, in order (their records are committed with them)."""
+        self.jobs = jobs
 
     # ----------------------------------------------------------------- in
     def finish(self, job: FrameJob, rendered: tuple, scene) -> None:

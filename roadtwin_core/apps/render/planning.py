@@ -6,13 +6,16 @@ randomizer's), but costs ~0.7 ms of Python a frame. On a GPU that renders 300 fr
 3,000 frames in one process is a fifth of the run. So frames are planned in blocks
 (:meth:`FramePlanner.block`), spread over a pool forked from this process (the town, its lanes and
 ground sampler are inherited, not shipped) and gathered in order: the jobs are those of planning
-every frame here, in one block, whatever the number of processes.
+every frame here, in one block, whatever the number of processes. On a GPU the blocks go to the
+frame sink's finishing processes (forked inside :func:`forking`, before the device is touched) while
+this process uploads the scene (``meanwhile``): no second pool, and the upload is off the setup's path.
 """
 from __future__ import annotations
 
 import multiprocessing
 import os
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -22,7 +25,7 @@ from ...render.randomize import Ranges, draw
 from .cameras import CameraPlan, DefectViews, ego_lane_points, with_ego_lanes
 from .pipeline import FrameJob
 
-__all__ = ["BLOCK", "PARALLEL_FROM", "FramePlanner", "frame_jobs", "plan_all"]
+__all__ = ["BLOCK", "PARALLEL_FROM", "FramePlanner", "forking", "frame_jobs", "plan_all"]
 
 BLOCK = 128                 # frames a task
 PARALLEL_FROM = 1024        # fewer frames are planned in this process: forking a pool costs ~0.1 s
@@ -93,25 +96,50 @@ def _planned_block(block: tuple[int, int]):
     return _PLANNER.block(*block)
 
 
-def plan_all(planner: FramePlanner, frames: int, *, processes: int | None = None,
-             parallel_from: int | None = None) -> tuple[CameraPlan, list[FrameJob], dict]:
-    """Every frame planned: (the camera plan of all frames, their jobs, seconds per phase summed
-    over processes). ``processes``: the pool's size (default: the cores this process may use);
-    fewer than ``parallel_from`` (default ``PARALLEL_FROM``) frames, or one process, plan here."""
+@contextmanager
+def forking(planner: "FramePlanner"):
+    """Processes forked inside can plan ``planner``'s blocks: pass their executor to :func:`plan_all`
+    (``pool``) within the same block."""
     global _PLANNER
+    before, _PLANNER = _PLANNER, planner
+    try:
+        yield
+    finally:
+        _PLANNER = before
+
+
+def plan_all(planner: FramePlanner, frames: int, *, processes: int | None = None,
+             parallel_from: int | None = None, pool=None, meanwhile=None) -> tuple[CameraPlan, list[FrameJob], dict]:
+    """Every frame planned: (the camera plan of all frames, their jobs, seconds per phase summed
+    over processes). ``pool``: an executor of processes forked inside :func:`forking` of this
+    planner, else a pool of ``processes`` (default: the cores this process may use) is forked here;
+    fewer than ``parallel_from`` (default ``PARALLEL_FROM``) frames, or one process, plan here.
+    ``meanwhile``: called here while the blocks are planned elsewhere (after planning otherwise)."""
     parallel_from = PARALLEL_FROM if parallel_from is None else parallel_from
     blocks = [(a, min(a + BLOCK, frames)) for a in range(0, frames, BLOCK)] or [(0, 0)]
     n_proc = min(processes or _usable_cores(), len(blocks))
-    if frames < parallel_from or n_proc < 2 or multiprocessing.current_process().daemon:   # a pool's worker: no children
-        parts = [planner.block(a, b) for a, b in blocks]
-    else:
-        _PLANNER = planner
+    if pool is not None and _PLANNER is not planner:
+        raise ValueError("plan_all: the pool's processes were not forked inside forking(planner)")
+    if frames < parallel_from or (pool is None and (n_proc < 2 or multiprocessing.current_process().daemon)):
+        parts = [planner.block(a, b) for a, b in blocks]       # a pool's worker: no children
+        if meanwhile is not None:
+            meanwhile()
+    elif pool is not None:
+        futures = [pool.submit(_planned_block, b) for b in blocks]
         try:
-            with multiprocessing.get_context("fork").Pool(n_proc) as pool:
-                # in order: a bad frame's error is the first one's, as when planned here
-                parts = list(pool.imap(_planned_block, blocks))
+            if meanwhile is not None:
+                meanwhile()
+            parts = [f.result() for f in futures]      # in order: a bad frame's error is the first one's
         finally:
-            _PLANNER = None
+            for f in futures:
+                f.cancel()
+    else:
+        with forking(planner), multiprocessing.get_context("fork").Pool(n_proc) as forked:
+            results = forked.imap(_planned_block, blocks)
+            if meanwhile is not None:
+                meanwhile()
+            # in order: a bad frame's error is the first one's, as when planned here
+            parts = list(results)
     plans = [p for p, _, _ in parts]
     plan = replace(plans[0], poses=[x for p in plans for x in p.poses],
                    view_records=[x for p in plans for x in p.view_records], lane_of=[])

@@ -33,8 +33,9 @@ CUDA device instead, ``device_frames``: other noise bytes than the CPU's, same s
 frames are recorded in order either way. ``phase_timings_s`` in the summary sums each phase's seconds.
 
 A run has four parts: the options checked (:func:`check_options`), the scene loaded
-(:func:`load_scene`), the frames planned (:func:`plan_frames`: cameras, formats, one job per
-frame, the event drive), then the dataset rendered and written (:func:`write_dataset`).
+(:func:`load_scene`), the frames planned (:func:`plan_frames`: cameras, formats, what decides each
+frame's job), then the dataset rendered and written (:func:`write_dataset`: the jobs planned, on a
+GPU by the forked finishing processes while the scene uploads, the event drive, the frames).
 """
 from __future__ import annotations
 
@@ -66,8 +67,8 @@ from .events import EventDrive, check_events
 from . import gpu_shards
 from .options import MAX_FRAMES, RenderOptions, Rig, ViewSpec, check_range, check_rig, parse_views, resolve_rig
 from .frame_sink import FrameSink, render_in_process
-from .pipeline import FrameJob, RenderContext, forget, render_chunk
-from .planning import FramePlanner, plan_all
+from .pipeline import RenderContext, forget, prepared_scene, render_chunk
+from .planning import FramePlanner, forking, plan_all
 from .writers import DatasetWriter, available_formats, parse_formats
 
 __all__ = ["CheckedOptions", "FramePlan", "Progress", "RenderOptions", "Scene", "check_options", "defect_statistics",
@@ -88,9 +89,8 @@ def run_render(stage: str | Path, out: str | Path, options: RenderOptions | None
     pm = pm or get_plugin_manager()
     scene = load_scene(stage, o, checked, pm)
     frames = plan_frames(stage, o, checked, scene, pm)
-    t_setup = time.perf_counter()
     with atomic_output_dir(out) as tmp:
-        return write_dataset(tmp, stage, o, checked, frames, progress, (t0, t_setup))
+        return write_dataset(tmp, stage, o, checked, scene, frames, progress, t0)
 
 
 @dataclass
@@ -166,22 +166,21 @@ def load_scene(stage: Path, o: RenderOptions, checked: CheckedOptions, pm) -> Sc
 
 @dataclass
 class FramePlan:
-    """What will be rendered: the cameras, the formats, one job per frame (on ``mesh``, which
-    ``--randomize`` gives the look table's split materials), what workers share, the event drive."""
+    """What will be rendered: the cameras, the formats, the planner of each frame's job (on
+    ``mesh``, which ``--randomize`` gives the look table's split materials), what workers share."""
 
-    cameras: CameraPlan
+    cameras: CameraPlan | DefectViews
     formats: list[str]
     known_formats: Any
     mesh: Any
-    jobs: list[FrameJob]
+    planner: FramePlanner
     context: RenderContext
-    drive: EventDrive | None
-    phases: dict = field(default_factory=dict)   # seconds: stage_read, cameras, view_sampling, randomize, planning
+    phases: dict = field(default_factory=dict)   # seconds: stage_read, cameras
 
 
 def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: Scene, pm) -> FramePlan:
-    """Cameras chosen, formats checked, each frame's job decided (``planning``: on forked
-    processes when there are many frames) and the event drive rendered."""
+    """Cameras chosen, formats checked, and what decides each frame's job (``planning``: run by
+    :func:`write_dataset`, on forked processes when there are many frames)."""
     r, cmap, params = checked.rig, checked.class_map, checked.params
     t0 = time.perf_counter()
     mesh, table = scene.mesh, None
@@ -200,35 +199,52 @@ def plan_frames(stage: Path, o: RenderOptions, checked: CheckedOptions, scene: S
     chained = None
     if cmap is not None and cmap.ego:        # the view sampler's chained lanes where it chained them
         chained = cameras.chained if isinstance(cameras, DefectViews) else chain_lanes(scene.lanes)
-    t1 = time.perf_counter()
+    if checked.drive is not None and not scene.lanes:
+        raise RoadtwinError(f"{stage}: --events drives along a lane, but the stage has no driving lane centerlines")
     planner = FramePlanner(cameras, params, o.seed, table, checked.ranges, chained, scene.lane_width)
-    plan, jobs, phases = plan_all(planner, cameras.frames)
-    phases = {**scene.phases, "cameras": t1 - t0, **phases, "planning": time.perf_counter() - t1}
     ctx = RenderContext(f"{os.getpid()}-{time.time_ns()}", scene.renderer, mesh, params, cmap, scene.lane_width,
                         "normal" in fmt)
-    drive = checked.drive
-    if drive is not None:
-        if not scene.lanes:
-            raise RoadtwinError(f"{stage}: --events drives along a lane, but the stage has no driving lane centerlines")
-        drive = drive.start(scene.renderer, mesh, params, scene.lanes, scene.ground(), o.seed, r)
-    return FramePlan(plan, fmt, known_formats, mesh, jobs, ctx, drive, phases)
+    return FramePlan(cameras, fmt, known_formats, mesh, planner, ctx,
+                     {**scene.phases, "cameras": time.perf_counter() - t0})
 
 
-def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedOptions, frames: FramePlan,
-                  progress: Progress | None, started: tuple[float, float]) -> dict:
-    """Render the frames (and the events) into ``folder``, then meta.json; returns the summary.
-    ``started``: when the run and its rendering began (``time.perf_counter``)."""
-    plan, mesh, cmap = frames.cameras, frames.mesh, checked.class_map
+def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedOptions, scene: Scene,
+                  frames: FramePlan, progress: Progress | None, started: float) -> dict:
+    """Plan each frame's job, render the frames (and the events) into ``folder``, then meta.json;
+    returns the summary. ``started``: when the run began (``time.perf_counter``).
+
+    On a GPU the finishing processes are forked first (before the device is touched), plan the
+    frames' blocks, and this process uploads the scene meanwhile."""
+    cams, mesh, cmap, ctx = frames.cameras, frames.mesh, checked.class_map, frames.context
     classes = list(cmap.classes) if cmap is not None else mesh.classes
-    writer = DatasetWriter(folder, frames.formats, plan.intrinsics, classes, mesh.instances,
-                           plan.baseline_m if plan.stereo else None, categories=mesh.defect_types,
+    writer = DatasetWriter(folder, frames.formats, cams.intrinsics, classes, mesh.instances,
+                           cams.baseline_m if cams.stereo else None, categories=mesh.defect_types,
                            available=frames.known_formats)
-    sink = _render_frames(checked.runner, frames.context, frames.jobs, writer, o.workers, progress)
+    runner = checked.runner
+    with forking(frames.planner):
+        sink, mode = _open_sink(runner, ctx, writer, cams, o.workers, progress)
+    try:
+        t0 = time.perf_counter()
+        prepared = {}
+        upload = (lambda: prepared.setdefault("prepare", prepared_scene(ctx)[1])) if mode == "here" else None
+        with forking(frames.planner):
+            plan, jobs, phases = plan_all(frames.planner, cams.frames, meanwhile=upload,
+                                          pool=sink.pool if sink.processes else None)
+        sink.expect(jobs)
+        sink.phases.update(phases, planning=time.perf_counter() - t0, **prepared)
+        drive = checked.drive
+        if drive is not None:
+            drive = drive.start(scene.renderer, mesh, checked.params, scene.lanes, scene.ground(), o.seed, checked.rig)
+        t_setup = time.perf_counter()
+        _render_frames(mode, runner, ctx, jobs, sink, o.workers)
+        sink.close()
+    finally:
+        sink.shutdown()
+        forget(ctx.token)
     shares, backend_used, device_used = sink.shares, sink.backend, sink.device
     t_frames = time.perf_counter()
-    n_events = frames.drive.write(writer, progress) if frames.drive is not None else 0
+    n_events = drive.write(writer, progress) if drive is not None else 0
     t_events = time.perf_counter()
-    t0, t_setup = started
     intr = plan.intrinsics
     summary = {
         "stage": str(stage), "renderer": o.renderer, "frames": len(plan.poses), "size": [intr.width, intr.height],
@@ -237,10 +253,10 @@ def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedO
             intr.width / 2 / intr.fx))), 4), "randomize": bool(o.randomize),
         "class_map": None if cmap is None else {"name": cmap.name, "source": cmap.source,
                                                 "classes": list(cmap.classes), "stage_labels": mesh.classes},
-        "executor": checked.runner.name, "backend": backend_used, "device": device_used,
+        "executor": runner.name, "backend": backend_used, "device": device_used,
         "defects": defect_statistics(shares),
         "render_params": dataclasses.asdict(checked.params), "material": o.material, "seed": o.seed,
-        "timings_s": {"setup": round(t_setup - t0, 3), "frames": round(t_frames - t_setup, 3),
+        "timings_s": {"setup": round(t_setup - started, 3), "frames": round(t_frames - t_setup, 3),
                       "events": round(t_events - t_frames, 3)},
         # seconds per phase, summed over threads and workers (bench/render_throughput.py prints them)
         "phase_timings_s": {k: round(v, 4) for k, v in {**frames.phases, **sink.phases}.items()},
@@ -252,39 +268,36 @@ def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedO
     return summary
 
 
-def _render_frames(runner, ctx: RenderContext, jobs: list, writer, workers: int | None, progress: Progress | None):
-    """Frames rendered, finished and written (``frame_sink``); returns the sink (per-frame
-    defect pixel shares, backend, device, phase seconds). On a GPU device frames render in this
-    process and ``workers`` forked processes (default: one a core but this one) finish and write
-    them; the serial executor does the same on ``workers`` threads (default 1); Ray on a GPU
-    device renders one shard a GPU of the cluster (``gpu_shards``) and threads write the frames
-    as they come; on the CPU, chunks go to the executor's workers and come back finished, and
-    threads write them."""
+def _open_sink(runner, ctx: RenderContext, writer, cameras, workers: int | None,
+               progress: Progress | None) -> tuple[FrameSink, str]:
+    """The frame sink (``frame_sink``) and where frames render: "here" (a GPU device: this process
+    renders, ``workers`` forked processes, default one a core but this one, finish and write; the
+    serial executor: ``workers`` threads, default 1), "shards" (Ray on a GPU device: one shard a
+    GPU of the cluster, ``gpu_shards``, threads write the frames as they come) or "chunks" (on the
+    CPU: chunks go to the executor's workers and come back finished, threads write them)."""
     report = progress or (lambda *_: None)
     n_cpu = os.cpu_count() or 1
     gpu = runner.name == "local" and _on_gpu(ctx.params.device)
-    sharded = runner.name == "ray" and gpu_shards.on_gpus(ctx.params.device)
     if gpu or runner.name == "serial":
-        sink = FrameSink(ctx, writer, jobs, workers or (max(1, n_cpu - 1) if gpu else 1), gpu, report)
+        return FrameSink(ctx, writer, cameras, workers or (max(1, n_cpu - 1) if gpu else 1), gpu, report), "here"
+    if runner.name == "ray" and gpu_shards.on_gpus(ctx.params.device):
+        return FrameSink(ctx, writer, cameras, max(2, min(8, n_cpu)), False, report), "shards"
+    return FrameSink(ctx, writer, cameras, min(4, n_cpu), False, report), "chunks"
+
+
+def _render_frames(mode: str, runner, ctx: RenderContext, jobs: list, sink: FrameSink, workers: int | None) -> None:
+    """Frames rendered (``mode``: :func:`_open_sink`'s) and handed to the sink, in order."""
+    if mode == "shards":
+        gpu_shards.render_on_gpus(runner, ctx, jobs, sink)
+    elif mode == "here":
+        render_in_process(ctx, jobs, sink)
     else:
-        sink = FrameSink(ctx, writer, jobs, max(2, min(8, n_cpu)) if sharded else min(4, n_cpu), False, report)
-    try:
-        if sharded:
-            gpu_shards.render_on_gpus(runner, ctx, jobs, sink)
-        elif gpu or runner.name == "serial":
-            render_in_process(ctx, jobs, sink)
-        else:
-            n_workers = workers or n_cpu
-            per_chunk = max(1, min(16, -(-len(jobs) // (4 * n_workers))))
-            chunks = [jobs[i:i + per_chunk] for i in range(0, len(jobs), per_chunk)]
-            for outs in runner.imap(render_chunk, ctx, chunks):
-                for fo in outs:
-                    sink.put(fo)
-        sink.close()
-    finally:
-        sink.shutdown()
-        forget(ctx.token)
-    return sink
+        n_workers = workers or os.cpu_count() or 1
+        per_chunk = max(1, min(16, -(-len(jobs) // (4 * n_workers))))
+        chunks = [jobs[i:i + per_chunk] for i in range(0, len(jobs), per_chunk)]
+        for outs in runner.imap(render_chunk, ctx, chunks):
+            for fo in outs:
+                sink.put(fo)
 
 
 def _on_gpu(device: str | None) -> bool:
