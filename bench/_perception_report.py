@@ -195,6 +195,45 @@ def summarize(runs: list[dict], n_boot: int = 2000, boot_seed: int = 0) -> dict:
     return summary
 
 
+def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0) -> dict:
+    """Runs of two configurations (e.g. with and without an option) paired by (arm, fraction, seed):
+    per run name present in both, the seeds both have, each side's mean and the paired bootstrap
+    gain of B over A (seeds pooled). Why: an option's effect on one arm, which ``report`` (every
+    arm against real only, one configuration) cannot show. Both sides on the same frames."""
+    a, b = load_runs(paths_a), load_runs(paths_b)
+    if a[0]["eval"]["stems"] != b[0]["eval"]["stems"]:
+        raise RoadtwinError(f"{b[0]['_file']}: evaluated on other frames than {a[0]['_file']}")
+    ka, kb = _comparable(a[0]), _comparable(b[0])
+    rows = {}
+    for name in dict.fromkeys(r["name"] for r in a):
+        ra = {r["seed"]: r for r in a if r["name"] == name}
+        rb = {r["seed"]: r for r in b if r["name"] == name}
+        seeds = sorted(ra.keys() & rb.keys())
+        if not seeds:
+            continue
+        mean = lambda rs: {m: float(np.mean([iou_table(np.array(r["I"]), np.array(r["U"]))[m] for r in rs]))
+                           for m in METRICS}
+        rows[name] = {"seeds": seeds, "a": mean([ra[s] for s in seeds]), "b": mean([rb[s] for s in seeds]),
+                      "gain": bootstrap_gain(*_pooled(list(ra.values()), seeds), *_pooled(list(rb.values()), seeds),
+                                             n_boot, boot_seed)}
+    if not rows:
+        raise RoadtwinError("compare: no run (arm, fraction, seed) is on both sides")
+    return {"a": a[0]["_file"], "b": b[0]["_file"], "differ": {k: [ka.get(k), kb.get(k)] for k in sorted(ka.keys() | kb.keys())
+                                                               if ka.get(k) != kb.get(k)}, "rows": rows}
+
+
+def compare_markdown(cmp: dict) -> str:
+    differ = ", ".join(f"{k} {va} -> {vb}" for k, (va, vb) in cmp["differ"].items()) or "nothing in their configuration"
+    lines = [f"B over A ({differ}); paired bootstrap 95 % interval over the evaluation frames, seeds pooled.", "",
+             "| run | seeds | " + " | ".join(f"{m} A / B: gain [interval]" for m in METRICS) + " |",
+             "|---|---|" + "---|" * len(METRICS)]
+    for name, row in cmp["rows"].items():
+        cells = [f"{_pt(row['a'][m])} / {_pt(row['b'][m])}: {row['gain'][m]['gain'] * 100:+.1f} "
+                 f"[{_pt(row['gain'][m]['lo'])}, {_pt(row['gain'][m]['hi'])}]" for m in METRICS]
+        lines.append(f"| {name} | {', '.join(map(str, row['seeds']))} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def _pt(v) -> str:
     return "–" if v is None or not np.isfinite(v) else f"{100 * v:.1f}"
 

@@ -59,7 +59,7 @@ from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_
 from _perception_frames import cmd_frames  # noqa: E402
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
-from _perception_report import iou_table, load_runs, markdown, summarize  # noqa: E402
+from _perception_report import compare_markdown, compare_runs, iou_table, load_runs, markdown, summarize  # noqa: E402
 from _perception_suite import gpu_ids, plan, run_suite  # noqa: E402
 from _perception_train import parse_style  # noqa: E402
 
@@ -232,6 +232,16 @@ def cmd_suite(args, log=print) -> int:
                      args.cv_metric, log, gpus)
 
 
+def cmd_compare(paths_a, paths_b, n_boot: int, out: str | None, log=print) -> dict:
+    cmp = compare_runs(paths_a, paths_b, n_boot)
+    md = compare_markdown(cmp)
+    log(md)
+    if out:
+        write_json(Path(out), cmp)
+        Path(out).with_suffix(".md").write_text(md)
+    return cmp
+
+
 def cmd_choose_set(records, out: Path, metric=None, log=print) -> dict:
     recs = []
     for r in records:
@@ -375,6 +385,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--grid-fraction", type=float, default=0.1, help="fraction shown in grid.jpg (default 0.1)")
     r.add_argument("--as-trained", action="store_true", help="every run with its trained batch-norm statistics "
                    "(the as-trained evaluation of --bn-stats real runs): compares runs with and without AdaBN")
+    cp = sub.add_parser("compare", help="two configurations' runs paired by (arm, fraction, seed): B's gain over A")
+    cp.add_argument("a", nargs="+", help="run_*.json files or folders of configuration A")
+    cp.add_argument("--b", nargs="+", required=True, help="run_*.json files or folders of configuration B")
+    cp.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples (default 2000, seeded)")
+    cp.add_argument("--out", default=None, help="also write the comparison here (JSON; its table beside it as .md)")
     c = sub.add_parser("choose-set", help="the synthetic set the mixed arm uses: best CV score on the train roads")
     c.add_argument("records", nargs="+", help="OUT/shared/cv_PCT.json of train --cv-only, one per synthetic set")
     c.add_argument("--metric", default=None, help="IoU compared (default: the records' CV metric)")
@@ -398,6 +413,8 @@ def main(argv=None) -> int:
             return 1 if cmd_suite(args) else 0
         elif args.cmd == "_job":
             cmd_job(args.common, args.spec)
+        elif args.cmd == "compare":
+            cmd_compare(args.a, args.b, args.bootstrap, args.out)
         elif args.cmd == "choose-set":
             cmd_choose_set(args.records, Path(args.out), args.metric)
         else:

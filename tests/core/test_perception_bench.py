@@ -662,3 +662,40 @@ def test_encoder_lr_zero_keeps_the_imagenet_weights_and_one_trains_them(tmp_path
         err = capsys.readouterr().err.strip()
         assert "\n" not in err and "--encoder-lr" in err and says in err
         assert not (tmp_path / "bad").exists()
+
+
+def test_compare_pairs_two_configurations_runs_against_a_closed_case(tmp_path, capsys):
+    """compare: B's gain over A per run present in both, its interval paired over frames. Closed
+    case: pothole IoU 1/4 on every frame in A and 3/4 in B gives +50 points, interval [50, 50]
+    (every resample has the same ratio); the configuration key that differs is named; a run only
+    on one side is left out; no common run is one line."""
+    bench = _bench()
+    from _perception_data import CLASSES
+
+    n, k = len(CLASSES), CLASSES.index("pothole")
+    base = {"steps": 2250, "pretrain_steps": 2250, "batch": 16, "encoder": "efficientnet-lite0"}
+
+    def rows(i_pothole):
+        i = [[2] * n, [2] * n]
+        for r in i:
+            r[k] = i_pothole
+        return i, [[4] * n, [4] * n]
+
+    a = _run_json(tmp_path / "a" / "run_zeroshot_na_seed0.json", "zeroshot", "e", base, *rows(1))
+    _run_json(tmp_path / "a" / "run_real_100_seed0.json", "real", "a", base, *rows(1))
+    b = _run_json(tmp_path / "b" / "run_zeroshot_na_seed0.json", "zeroshot", "e", {**base, "encoder_lr": 0.1}, *rows(3))
+    for p in (a, b):
+        run = json.loads(p.read_text())
+        p.write_text(json.dumps({**run, "fraction": None, "name": "zeroshot"}))
+    out = tmp_path / "cmp.json"
+    assert bench.main(["compare", str(tmp_path / "a"), "--b", str(tmp_path / "b"), "--bootstrap", "200", "--out", str(out)]) == 0
+    cmp = json.loads(out.read_text())
+    assert list(cmp["rows"]) == ["zeroshot"] and cmp["differ"] == {"encoder_lr": [1.0, 0.1]}
+    g = cmp["rows"]["zeroshot"]["gain"]["pothole"]
+    assert g["gain"] == pytest.approx(0.5) and g["lo"] == pytest.approx(0.5) and g["hi"] == pytest.approx(0.5)
+    assert cmp["rows"]["zeroshot"]["gain"]["crack"]["gain"] == pytest.approx(0.0)
+    assert "+50.0 [50.0, 50.0]" in out.with_suffix(".md").read_text()
+    capsys.readouterr()
+    assert bench.main(["compare", str(tmp_path / "a" / "run_real_100_seed0.json"), "--b", str(b)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "no run" in err
