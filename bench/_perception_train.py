@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,9 +39,20 @@ class Phase:
 
 
 def to_device(frames, device):
+    """The frames' images and labels as tensors on ``device``. The suite's processes map the decoded
+    frames read-only: a CUDA device gets its own copy anyway, the CPU a writable one (torch does not
+    support tensors over read-only memory, and warned so once a job)."""
     torch = _torch()
-    return (torch.from_numpy(np.ascontiguousarray(frames.images)).to(device),
-            torch.from_numpy(np.ascontiguousarray(frames.labels)).to(device))
+
+    def tensor(a):
+        a = np.ascontiguousarray(a)
+        if not a.flags.writeable and torch.device(device).type == "cpu":
+            a = a.copy()
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
+            return torch.from_numpy(a).to(device)
+
+    return tensor(frames.images), tensor(frames.labels)
 
 
 def augment(images_u8, labels_u8, gen, train: bool = True):
