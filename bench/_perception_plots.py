@@ -108,3 +108,34 @@ def grid_frames(labels: np.ndarray, n: int = 6) -> list[int]:
     m = min(len(rest), n - len(pick))
     pick += list(rest[np.linspace(0, len(rest) - 1, m).round().astype(int)]) if m else []
     return sorted(int(i) for i in dict.fromkeys(pick))
+
+
+def compare_plot(cmp: dict, path: Path, metrics=("pothole", "crack", "ego_lane", "mIoU")) -> Path:
+    """``compare``'s gains of B over A as bars with their 95 % paired-bootstrap intervals, one group
+    per run name (its seeds under it), one bar per metric."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(cmp["rows"])
+    fig, ax = plt.subplots(figsize=(max(6.4, 1.6 + 1.9 * len(names) * len(metrics) / 4), 3.8))
+    width = 0.8 / len(metrics)
+    colours = plt.get_cmap("tab10").colors
+    for j, m in enumerate(metrics):
+        g = [cmp["rows"][n]["gain"][m] for n in names]
+        ys = [100 * x["gain"] for x in g]
+        err = [[max(0.0, 100 * (x["gain"] - x["lo"])) for x in g], [max(0.0, 100 * (x["hi"] - x["gain"])) for x in g]]
+        ax.bar([k + (j - (len(metrics) - 1) / 2) * width for k in range(len(names))], ys, width, yerr=err, capsize=3,
+               color=colours[j % len(colours)], label=m.replace("_", " "))
+    ax.axhline(0, color="k", lw=0.8)
+    ax.set_xticks(range(len(names)), [f"{n}\nseeds {', '.join(map(str, cmp['rows'][n]['seeds']))}" for n in names])
+    ax.set_ylabel("gain of B over A (IoU points)")
+    ax.grid(axis="y", alpha=0.3)
+    differ = ", ".join(f"{k} {va} -> {vb}" for k, (va, vb) in cmp["differ"].items()) or "same configuration"
+    ax.set_title(f"B over A ({differ}); seeds pooled, 95 % paired bootstrap", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -58,7 +58,7 @@ from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_
                             labels_beyond_fraction, leak_guard, parse_mix, synthetic_sources, write_json)
 from _perception_frames import cmd_frames  # noqa: E402
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
-from _perception_plots import gains_plot, grid_frames, prediction_grid  # noqa: E402
+from _perception_plots import compare_plot, gains_plot, grid_frames, prediction_grid  # noqa: E402
 from _perception_report import compare_markdown, compare_runs, iou_table, load_runs, markdown, summarize  # noqa: E402
 from _perception_suite import gpu_ids, plan, run_suite  # noqa: E402
 from _perception_train import parse_style  # noqa: E402
@@ -239,6 +239,7 @@ def cmd_compare(paths_a, paths_b, n_boot: int, out: str | None, log=print) -> di
     if out:
         write_json(Path(out), cmp)
         Path(out).with_suffix(".md").write_text(md)
+        log(f"wrote {out}, {Path(out).with_suffix('.md')}, {compare_plot(cmp, Path(out).with_suffix('.png'))}")
     return cmp
 
 
@@ -389,7 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
     cp.add_argument("a", nargs="+", help="run_*.json files or folders of configuration A")
     cp.add_argument("--b", nargs="+", required=True, help="run_*.json files or folders of configuration B")
     cp.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples (default 2000, seeded)")
-    cp.add_argument("--out", default=None, help="also write the comparison here (JSON; its table beside it as .md)")
+    cp.add_argument("--out", default=None, help="also write the comparison here (JSON; its table beside it as .md, its bars as .png)")
     c = sub.add_parser("choose-set", help="the synthetic set the mixed arm uses: best CV score on the train roads")
     c.add_argument("records", nargs="+", help="OUT/shared/cv_PCT.json of train --cv-only, one per synthetic set")
     c.add_argument("--metric", default=None, help="IoU compared (default: the records' CV metric)")

@@ -698,6 +698,7 @@ def test_compare_pairs_two_configurations_runs_against_a_closed_case(tmp_path, c
     assert g["gain"] == pytest.approx(0.5) and g["lo"] == pytest.approx(0.5) and g["hi"] == pytest.approx(0.5)
     assert cmp["rows"]["zeroshot"]["gain"]["crack"]["gain"] == pytest.approx(0.0)
     assert "+50.0 [50.0, 50.0]" in out.with_suffix(".md").read_text()
+    assert Image.open(out.with_suffix(".png")).size[0] > 0               # the bars beside it
     capsys.readouterr()
     assert bench.main(["compare", str(tmp_path / "a" / "run_real_100_seed0.json"), "--b", str(b)]) == 2
     err = capsys.readouterr().err.strip()
