@@ -204,6 +204,11 @@ def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0) -> di
     if a[0]["eval"]["stems"] != b[0]["eval"]["stems"]:
         raise RoadtwinError(f"{b[0]['_file']}: evaluated on other frames than {a[0]['_file']}")
     ka, kb = _comparable(a[0]), _comparable(b[0])
+
+    def mean(rs: list[dict]) -> dict:
+        tables = [iou_table(np.array(r["I"]), np.array(r["U"])) for r in rs]
+        return {m: float(np.mean([t[m] for t in tables])) for m in METRICS}
+
     rows = {}
     for name in dict.fromkeys(r["name"] for r in a):
         ra = {r["seed"]: r for r in a if r["name"] == name}
@@ -211,8 +216,6 @@ def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0) -> di
         seeds = sorted(ra.keys() & rb.keys())
         if not seeds:
             continue
-        mean = lambda rs: {m: float(np.mean([iou_table(np.array(r["I"]), np.array(r["U"]))[m] for r in rs]))
-                           for m in METRICS}
         rows[name] = {"seeds": seeds, "a": mean([ra[s] for s in seeds]), "b": mean([rb[s] for s in seeds]),
                       "gain": bootstrap_gain(*_pooled(list(ra.values()), seeds), *_pooled(list(rb.values()), seeds),
                                              n_boot, boot_seed)}
@@ -222,9 +225,13 @@ def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0) -> di
                                                                if ka.get(k) != kb.get(k)}, "rows": rows}
 
 
+def differ_text(cmp: dict) -> str:
+    """What tells ``compare``'s two configurations apart, as "key A -> B, ..."."""
+    return ", ".join(f"{k} {va} -> {vb}" for k, (va, vb) in cmp["differ"].items()) or "the same configuration"
+
+
 def compare_markdown(cmp: dict) -> str:
-    differ = ", ".join(f"{k} {va} -> {vb}" for k, (va, vb) in cmp["differ"].items()) or "nothing in their configuration"
-    lines = [f"B over A ({differ}); paired bootstrap 95 % interval over the evaluation frames, seeds pooled.", "",
+    lines = [f"B over A ({differ_text(cmp)}); paired bootstrap 95 % interval over the evaluation frames, seeds pooled.", "",
              "| run | seeds | " + " | ".join(f"{m} A / B: gain [interval]" for m in METRICS) + " |",
              "|---|---|" + "---|" * len(METRICS)]
     for name, row in cmp["rows"].items():

@@ -197,7 +197,7 @@ def param_groups(model, cfg) -> list:
     """The optimizer's parameter groups: one rate for the whole network, or the ImageNet encoder's
     scaled by ``cfg.encoder_lr`` (``--encoder-lr``). Why: a lower rate keeps more of what the encoder
     learnt from real photos, which is what a model trained on synthetic frames alone can lean on."""
-    scale = getattr(cfg, "encoder_lr", 1.0)
+    scale = cfg.encoder_lr
     encoder = getattr(model, "encoder", None)
     if scale == 1 or encoder is None:
         return [{"params": list(model.parameters())}]

@@ -116,19 +116,18 @@ def plan_all(planner: FramePlanner, frames: int, *, processes: int | None = None
     fewer than ``parallel_from`` (default ``PARALLEL_FROM``) frames, or one process, plan here.
     ``meanwhile``: called here while the blocks are planned elsewhere (after planning otherwise)."""
     parallel_from = PARALLEL_FROM if parallel_from is None else parallel_from
+    meanwhile = meanwhile or (lambda: None)
     blocks = [(a, min(a + BLOCK, frames)) for a in range(0, frames, BLOCK)] or [(0, 0)]
     n_proc = min(processes or _usable_cores(), len(blocks))
     if pool is not None and _PLANNER is not planner:
         raise ValueError("plan_all: the pool's processes were not forked inside forking(planner)")
     if frames < parallel_from or (pool is None and (n_proc < 2 or multiprocessing.current_process().daemon)):
         parts = [planner.block(a, b) for a, b in blocks]       # a pool's worker: no children
-        if meanwhile is not None:
-            meanwhile()
+        meanwhile()
     elif pool is not None:
         futures = [pool.submit(_planned_block, b) for b in blocks]
         try:
-            if meanwhile is not None:
-                meanwhile()
+            meanwhile()
             parts = [f.result() for f in futures]      # in order: a bad frame's error is the first one's
         finally:
             for f in futures:
@@ -136,8 +135,7 @@ def plan_all(planner: FramePlanner, frames: int, *, processes: int | None = None
     else:
         with forking(planner), multiprocessing.get_context("fork").Pool(n_proc) as forked:
             results = forked.imap(_planned_block, blocks)
-            if meanwhile is not None:
-                meanwhile()
+            meanwhile()
             # in order: a bad frame's error is the first one's, as when planned here
             parts = list(results)
     plans = [p for p, _, _ in parts]

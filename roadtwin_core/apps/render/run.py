@@ -221,26 +221,28 @@ def write_dataset(folder: Path, stage: Path, o: RenderOptions, checked: CheckedO
                            cams.baseline_m if cams.stereo else None, categories=mesh.defect_types,
                            available=frames.known_formats)
     runner = checked.runner
+
+    def upload() -> None:            # this process renders: its scene goes to the device meanwhile
+        sink.phases["prepare"] = prepared_scene(ctx)[1]
+
     with forking(frames.planner):
         sink, mode = _open_sink(runner, ctx, writer, cams, o.workers, progress)
-    try:
-        t0 = time.perf_counter()
-        prepared = {}
-        upload = (lambda: prepared.setdefault("prepare", prepared_scene(ctx)[1])) if mode == "here" else None
-        with forking(frames.planner):
-            plan, jobs, phases = plan_all(frames.planner, cams.frames, meanwhile=upload,
+        try:
+            t0 = time.perf_counter()
+            plan, jobs, phases = plan_all(frames.planner, cams.frames, meanwhile=upload if mode == "here" else None,
                                           pool=sink.pool if sink.processes else None)
-        sink.expect(jobs)
-        sink.phases.update(phases, planning=time.perf_counter() - t0, **prepared)
-        drive = checked.drive
-        if drive is not None:
-            drive = drive.start(scene.renderer, mesh, checked.params, scene.lanes, scene.ground(), o.seed, checked.rig)
-        t_setup = time.perf_counter()
-        _render_frames(mode, runner, ctx, jobs, sink, o.workers)
-        sink.close()
-    finally:
-        sink.shutdown()
-        forget(ctx.token)
+            sink.expect(jobs)
+            sink.phases.update(phases, planning=time.perf_counter() - t0)
+            drive = checked.drive
+            if drive is not None:
+                drive = drive.start(scene.renderer, mesh, checked.params, scene.lanes, scene.ground(), o.seed,
+                                    checked.rig)
+            t_setup = time.perf_counter()
+            _render_frames(mode, runner, ctx, jobs, sink, o.workers)
+            sink.close()
+        finally:
+            sink.shutdown()
+            forget(ctx.token)
     shares, backend_used, device_used = sink.shares, sink.backend, sink.device
     t_frames = time.perf_counter()
     n_events = drive.write(writer, progress) if drive is not None else 0
