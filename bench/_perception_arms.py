@@ -211,8 +211,10 @@ def adapt_bn(model, cfg: Config, arm: str, real: Frames | None, style: Frames | 
 
 
 def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: Frames, synth: Frames | None,
-            cfg: Config, device, mix: dict | None = None, cache: Path | None = None, keep=(), log=print) -> dict:
-    """One (arm, fraction, seed) run: train, evaluate per frame; the result a run JSON holds."""
+            cfg: Config, device, mix: dict | None = None, cache: Path | None = None, keep=(), log=print,
+            selectset: Frames | None = None) -> dict:
+    """One (arm, fraction, seed) run: train, evaluate per frame; the result a run JSON holds.
+    ``selectset``: the same model also evaluated there (``select``), for choices val must not make."""
     t0 = time.perf_counter()
     sub = real_subset(real, fraction, cfg.subset_seed) if arm != "zeroshot" else None
     # the style frames: the arm's real frames; zero-shot sees no real label, only the train images
@@ -226,6 +228,10 @@ def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: 
         as_trained = {"I": i.tolist(), "U": u.tolist()}
         adapt_bn(model, cfg, arm, sub, style, device, infos)
     i, u, kept = evaluate(model, evaldev, device, cfg.batch, set(keep))
+    select = None
+    if selectset is not None:
+        si, su, _ = evaluate(model, to_device(selectset, device), device, cfg.batch)
+        select = {"folder": selectset.folder, "stems": selectset.stems, "I": si.tolist(), "U": su.tolist()}
     steps = sum(p["steps"] for p in infos)
     train_s = sum(p["seconds"] for p in infos)
     return {"arm": arm, "letter": LETTER[arm], "fraction": fraction if arm != "zeroshot" else None, "seed": seed,
@@ -236,6 +242,7 @@ def run_arm(arm: str, fraction: float | None, seed: int, real: Frames, evalset: 
             "synthetic_frames": len(synth.stems) if synth is not None and arm in SYNTHETIC_ARMS else 0,
             "eval": {"folder": evalset.folder, "stems": evalset.stems},
             "I": i.tolist(), "U": u.tolist(), **({"as_trained": as_trained} if as_trained else {}),
+            **({"select": select} if select else {}),
             "grid": {str(k): v for k, v in sorted(kept.items())}}
 
 

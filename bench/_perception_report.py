@@ -87,10 +87,23 @@ def _as_trained(run: dict, f: Path) -> dict:
     return {**run, "I": run["as_trained"]["I"], "U": run["as_trained"]["U"], "config": {**cfg, "bn_stats": "train"}}
 
 
-def load_runs(paths, as_trained: bool = False) -> list[dict]:
+def _on_selection(run: dict, f: Path) -> dict:
+    """The run as evaluated on its ``--select`` folder (``--on select``)."""
+    if "select" not in run:
+        raise RoadtwinError(f"{f}: has no evaluation on a selection folder (trained without --select)")
+    sel = run["select"]
+    return {**run, "I": sel["I"], "U": sel["U"], "eval": {"folder": sel["folder"], "stems": sel["stems"]}}
+
+
+def load_runs(paths, as_trained: bool = False, on: str = "eval") -> list[dict]:
     """Run JSONs (files, or folders holding run_*.json); the same (arm, fraction, seed) twice must
     agree, and every run must be evaluated on the same frames. ``as_trained``: every run with its
-    trained batch-norm statistics, so that runs with and without AdaBN compare."""
+    trained batch-norm statistics, so that runs with and without AdaBN compare. ``on="select"``:
+    every run's evaluation on its selection folder instead of its evaluation folder."""
+    if on not in ("eval", "select"):
+        raise RoadtwinError(f"--on: eval or select, not {on!r}")
+    if on == "select" and as_trained:
+        raise RoadtwinError("--on select with --as-trained: the selection evaluation is after AdaBN only")
     files = []
     for p in map(Path, paths):
         files += sorted(p.glob("run_*.json")) if p.is_dir() else [p]
@@ -106,6 +119,8 @@ def load_runs(paths, as_trained: bool = False) -> list[dict]:
         if as_trained:
             r = _as_trained(r, f)
             r.pop("as_trained", None)
+        if on == "select":
+            r = _on_selection(r, f)
         if r["eval"]["stems"] != (runs[0]["eval"]["stems"] if runs else r["eval"]["stems"]):
             raise RoadtwinError(f"{f}: evaluated on other frames than {files[0]} ({r['eval']['folder']})")
         if runs and _comparable(r) != _comparable(runs[0]):
@@ -195,12 +210,12 @@ def summarize(runs: list[dict], n_boot: int = 2000, boot_seed: int = 0) -> dict:
     return summary
 
 
-def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0) -> dict:
+def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0, on: str = "eval") -> dict:
     """Runs of two configurations (e.g. with and without an option) paired by (arm, fraction, seed):
     per run name present in both, the seeds both have, each side's mean and the paired bootstrap
     gain of B over A (seeds pooled). Why: an option's effect on one arm, which ``report`` (every
     arm against real only, one configuration) cannot show. Both sides on the same frames."""
-    a, b = load_runs(paths_a), load_runs(paths_b)
+    a, b = load_runs(paths_a, on=on), load_runs(paths_b, on=on)
     if a[0]["eval"]["stems"] != b[0]["eval"]["stems"]:
         raise RoadtwinError(f"{b[0]['_file']}: evaluated on other frames than {a[0]['_file']}")
     ka, kb = _comparable(a[0]), _comparable(b[0])
@@ -221,7 +236,7 @@ def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0) -> di
                                              n_boot, boot_seed)}
     if not rows:
         raise RoadtwinError("compare: no run (arm, fraction, seed) is on both sides")
-    return {"a": a[0]["_file"], "b": b[0]["_file"], "differ": {k: [ka.get(k), kb.get(k)] for k in sorted(ka.keys() | kb.keys())
+    return {"a": a[0]["_file"], "b": b[0]["_file"], "on": on, "folder": a[0]["eval"]["folder"], "differ": {k: [ka.get(k), kb.get(k)] for k in sorted(ka.keys() | kb.keys())
                                                                if ka.get(k) != kb.get(k)}, "rows": rows}
 
 
@@ -231,7 +246,9 @@ def differ_text(cmp: dict) -> str:
 
 
 def compare_markdown(cmp: dict) -> str:
-    lines = [f"B over A ({differ_text(cmp)}); paired bootstrap 95 % interval over the evaluation frames, seeds pooled.", "",
+    where = "selection" if cmp.get("on") == "select" else "evaluation"
+    lines = [f"B over A ({differ_text(cmp)}); on the {where} frames (`{cmp.get('folder', '?')}`), paired bootstrap 95 % "
+             "interval over them, seeds pooled.", "",
              "| run | seeds | " + " | ".join(f"{m} A / B: gain [interval]" for m in METRICS) + " |",
              "|---|---|" + "---|" * len(METRICS)]
     for name, row in cmp["rows"].items():

@@ -22,7 +22,10 @@ pothole frame) and seeds. Each (arm, fraction, seed) run writes OUT/run_<arm>_<p
 ``report`` merges run JSONs: per-class IoU, mIoU with and without background, mean +- std over
 seeds, paired bootstrap 95 % intervals of each arm's gain over (a) at the same fraction and seeds
 (val frames resampled), results.json, results.md, gains.png, grid.jpg. Nothing is chosen on the
-evaluation frames: `--test DIR` evaluates on the held-out roads instead of val.
+evaluation frames: `--test DIR` evaluates on the held-out roads instead of val. A choice the
+evaluation frames must not make is made on a selection folder (`--select DIR`: every run is also
+evaluated there; `report`/`compare --on select` read that evaluation). Zero-shot (e) trains on no
+real frame, so for it the real train folder is a fair selection split.
 
 Subcommands:
   pack SRC DST    a dataset folder -> DST/images/*.jpg + labels/*.png (+ classes.json) at 512x320
@@ -73,6 +76,23 @@ def _folders(args) -> tuple[Path, Path]:
     return train, evalf
 
 
+def _selection_folder(args, arms, train_dir: Path, eval_dir: Path) -> Path | None:
+    """--select DIR, checked: never the evaluation folder (a choice made there is what it must
+    not inform), and the train folder only when every arm is zero-shot (the others train on it)."""
+    if not getattr(args, "select", None):
+        return None
+    sel = Path(args.select)
+    if not sel.is_dir():
+        raise RoadtwinError(f"--select {sel}: no such folder")
+    if sel.resolve() == eval_dir.resolve():
+        raise RoadtwinError(f"--select {sel}: is the evaluation folder; choose on other frames than those reported")
+    trained_on = [LETTER[a] for a in arms if a != "zeroshot"]
+    if sel.resolve() == train_dir.resolve() and trained_on:
+        raise RoadtwinError(f"--select {sel}: arms {', '.join(trained_on)} train on these frames; only (e) zero-shot "
+                            f"never sees them (give --arms e)")
+    return sel
+
+
 def parse_arms(names) -> list[str]:
     by_letter = {v: k for k, v in LETTER.items()}
     arms = []
@@ -114,11 +134,14 @@ def prepare(args, log=print) -> dict:
     if synth_needed:
         check_class_maps(train_dir, args.synthetic)
     cv_dirs = _cv_synthetic_dirs(args, arms, train_dir)
+    select_dir = _selection_folder(args, arms, train_dir, eval_dir)
     cache = Path(args.out) / "shared"
     t0 = time.perf_counter()
     real = load_frames(train_dir, cfg.size, args.limit_frames, cache)
     size = (real.images.shape[2], real.images.shape[1])
     evalset = load_frames(eval_dir, size, args.limit_frames, cache)
+    selectset = None if select_dir is None else (
+        real if select_dir.resolve() == train_dir.resolve() else load_frames(select_dir, size, args.limit_frames, cache))
     synth = load_frames(args.synthetic, size, args.limit_frames, cache) if synth_needed else None
     cv_synth = [load_frames(d, size, args.limit_frames, cache) for d in cv_dirs] or None
     for f in args.fractions:
@@ -130,9 +153,10 @@ def prepare(args, log=print) -> dict:
     if not grid.exists():
         np.savez_compressed(grid, frames=np.array(keep), images=evalset.images[keep], labels=evalset.labels[keep])
     log(f"real train {len(real.stems)} frames ({train_dir}), evaluation {len(evalset.stems)} ({eval_dir}), synthetic "
-        f"{len(synth.stems) if synth else 0} ({args.synthetic}); {size[0]}x{size[1]}; loaded in {time.perf_counter() - t0:.1f} s")
+        f"{len(synth.stems) if synth else 0} ({args.synthetic}); {size[0]}x{size[1]}; loaded in {time.perf_counter() - t0:.1f} s"
+        + (f"; selection {len(selectset.stems)} ({select_dir})" if selectset is not None else ""))
     return {"arms": arms, "cfg": cfg, "real": real, "evalset": evalset, "synth": synth, "cache": cache, "keep": keep,
-            "cv_synth": cv_synth}
+            "cv_synth": cv_synth, "selectset": selectset}
 
 
 def _cv_synthetic_dirs(args, arms, train_dir) -> list[str]:
@@ -179,7 +203,7 @@ def _mix_for(args, ctx, fraction, device, log):
 def one_run(args, ctx, arm, fraction, seed, device, log=print) -> Path:
     mix = _mix_for(args, ctx, fraction, device, log) if arm == "mixed" else None
     res = run_arm(arm, fraction, seed, ctx["real"], ctx["evalset"], ctx["synth"], ctx["cfg"], device, mix,
-                  ctx["cache"], ctx["keep"], log)
+                  ctx["cache"], ctx["keep"], log, selectset=ctx.get("selectset"))
     import torch
 
     res["device"] = torch.cuda.get_device_name() if str(device).startswith("cuda") else str(device)
@@ -195,6 +219,9 @@ def one_run(args, ctx, arm, fraction, seed, device, log=print) -> Path:
     log(f"  ({res['letter']}) {res['name']} seed {seed}: " + "  ".join(f"{c} {100 * t[c]:.1f}" for c in
                                                                       ("pothole", "crack", "ego_lane", "mIoU", "mIoU_fg"))
         + f"  [{res['steps']} steps, {res['wall_seconds']:.0f} s wall, {res['steps_per_s']} steps/s]")
+    if "select" in res:
+        t = iou_table(np.array(res["select"]["I"]), np.array(res["select"]["U"]))
+        log(f"      on the selection folder: " + "  ".join(f"{c} {100 * t[c]:.1f}" for c in ("pothole", "crack", "ego_lane", "mIoU")))
     return write_run(res, Path(args.out))
 
 
@@ -232,8 +259,8 @@ def cmd_suite(args, log=print) -> int:
                      args.cv_metric, log, gpus)
 
 
-def cmd_compare(paths_a, paths_b, n_boot: int, out: str | None, log=print) -> dict:
-    cmp = compare_runs(paths_a, paths_b, n_boot)
+def cmd_compare(paths_a, paths_b, n_boot: int, out: str | None, log=print, on: str = "eval") -> dict:
+    cmp = compare_runs(paths_a, paths_b, n_boot, on=on)
     md = compare_markdown(cmp)
     log(md)
     if out:
@@ -279,8 +306,9 @@ def cmd_job(common: str, spec_text: str, log=print) -> None:
         write_json(Path(spec["output"]), part)
 
 
-def report(paths, out: Path, n_boot: int = 2000, grid_fraction: float = 0.1, log=print, as_trained: bool = False) -> dict:
-    runs = load_runs(paths, as_trained)
+def report(paths, out: Path, n_boot: int = 2000, grid_fraction: float = 0.1, log=print, as_trained: bool = False,
+           on: str = "eval") -> dict:
+    runs = load_runs(paths, as_trained, on)
     summary = summarize(runs, n_boot)
     summary["as_trained"] = as_trained
     summary["cv"] = {f"{r['name']}": r["mix"] for r in runs if r.get("mix") and r["seed"] == min(x["seed"] for x in runs)}
@@ -290,7 +318,7 @@ def report(paths, out: Path, n_boot: int = 2000, grid_fraction: float = 0.1, log
     (out / "results.md").write_text(md)
     log(md)
     grids = [Path(p) / "eval_grid.npz" if Path(p).is_dir() else Path(p).parent / "eval_grid.npz" for p in paths]
-    grid = next((g for g in grids if g.exists()), None)
+    grid = next((g for g in grids if g.exists()), None) if on == "eval" else None   # the grid holds evaluation frames
     for p in (gains_plot(summary, out / "gains.png"),
               prediction_grid(runs, grid, out / "grid.jpg", grid_fraction) if grid else None):
         if p:
@@ -305,6 +333,9 @@ def _run_options(t) -> None:
     t.add_argument("--train", help="real train folder (default REAL/train)")
     t.add_argument("--val", help="evaluation folder (default REAL/val)")
     t.add_argument("--test", help="held-out test folder: evaluate there instead of val (never for a choice)")
+    t.add_argument("--select", metavar="DIR", help="selection folder: every run is also evaluated there (for choices the "
+                   "evaluation folder must not make; report/compare --on select). Not the evaluation folder; the real "
+                   "train folder only with --arms e (zero-shot never trains on it)")
     t.add_argument("--synthetic", help="synthetic frames, labels class-mapped to the real classes")
     t.add_argument("--arms", nargs="+", default=list(ARMS), help="of " + ", ".join(ARMS) + " (or a-e); default all")
     t.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -384,12 +415,14 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True)
     r.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples (default 2000, seeded)")
     r.add_argument("--grid-fraction", type=float, default=0.1, help="fraction shown in grid.jpg (default 0.1)")
+    r.add_argument("--on", choices=("eval", "select"), default="eval", help="eval (default): the runs' evaluation folder; select: their --select folder")
     r.add_argument("--as-trained", action="store_true", help="every run with its trained batch-norm statistics "
                    "(the as-trained evaluation of --bn-stats real runs): compares runs with and without AdaBN")
     cp = sub.add_parser("compare", help="two configurations' runs paired by (arm, fraction, seed): B's gain over A")
     cp.add_argument("a", nargs="+", help="run_*.json files or folders of configuration A")
     cp.add_argument("--b", nargs="+", required=True, help="run_*.json files or folders of configuration B")
     cp.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples (default 2000, seeded)")
+    cp.add_argument("--on", choices=("eval", "select"), default="eval", help="eval (default): the runs' evaluation folder; select: their --select folder")
     cp.add_argument("--out", default=None, help="also write the comparison here (JSON; its table beside it as .md, its bars as .png)")
     c = sub.add_parser("choose-set", help="the synthetic set the mixed arm uses: best CV score on the train roads")
     c.add_argument("records", nargs="+", help="OUT/shared/cv_PCT.json of train --cv-only, one per synthetic set")
@@ -415,11 +448,11 @@ def main(argv=None) -> int:
         elif args.cmd == "_job":
             cmd_job(args.common, args.spec)
         elif args.cmd == "compare":
-            cmd_compare(args.a, args.b, args.bootstrap, args.out)
+            cmd_compare(args.a, args.b, args.bootstrap, args.out, on=args.on)
         elif args.cmd == "choose-set":
             cmd_choose_set(args.records, Path(args.out), args.metric)
         else:
-            report(args.results, Path(args.out), args.bootstrap, args.grid_fraction, as_trained=args.as_trained)
+            report(args.results, Path(args.out), args.bootstrap, args.grid_fraction, as_trained=args.as_trained, on=args.on)
     except RoadtwinError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

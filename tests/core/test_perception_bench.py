@@ -703,3 +703,87 @@ def test_compare_pairs_two_configurations_runs_against_a_closed_case(tmp_path, c
     assert bench.main(["compare", str(tmp_path / "a" / "run_real_100_seed0.json"), "--b", str(b)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "no run" in err
+
+
+# ------------------------------------------------------------------------------ selection folder
+def test_select_evaluates_each_run_on_a_second_folder_and_refuses_the_reported_one(tmp_path, capsys):
+    """--select DIR: every run is also evaluated on DIR. The same frames copied to another folder
+    give exactly the evaluation folder's intersections and unions (one model, one evaluation);
+    with the real train folder (zero-shot only) the selection holds the train frames. Bad input,
+    one line each and no output: the evaluation folder itself, the train folder with an arm that
+    trains on it, a folder that does not exist."""
+    pytest.importorskip("torch")
+    bench = _bench()
+    synth = make_standin_synthetic(tmp_path / "synth")
+    val_copy = tmp_path / "val_copy"
+    shutil.copytree(TINY / "val", val_copy)
+    out = tmp_path / "out"
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "e", "b",
+                       "--fractions", "1", "--seeds", "0", "--select", str(val_copy), "--out", str(out)]) == 0
+    for f in ("run_zeroshot_na_seed0.json", "run_pretrain_100_seed0.json"):
+        run = json.loads((out / f).read_text())
+        assert run["select"]["stems"] == run["eval"]["stems"] and run["select"]["folder"] == str(val_copy)
+        assert run["select"]["I"] == run["I"] and run["select"]["U"] == run["U"]
+    out_train = tmp_path / "out_train"
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "e", "--seeds", "0",
+                       "--select", str(TINY / "train"), "--out", str(out_train)]) == 0
+    run = json.loads((out_train / "run_zeroshot_na_seed0.json").read_text())
+    train_stems = sorted(p.stem for p in (TINY / "train" / "images").glob("*.jpg"))
+    assert sorted(run["select"]["stems"]) == train_stems != sorted(run["eval"]["stems"])
+    assert np.array(run["select"]["U"]).shape == (len(train_stems), np.array(run["U"]).shape[1])
+    capsys.readouterr()
+    for sel, arms, says in ((TINY / "val", ["e"], "evaluation folder"), (TINY / "train", ["a", "e"], "arms a train"),
+                            (tmp_path / "nowhere", ["e"], "no such folder")):
+        bad = tmp_path / "bad"
+        assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", *arms,
+                           "--seeds", "0", "--select", str(sel), "--out", str(bad)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "--select" in err and says in err
+        assert not bad.exists()
+
+
+def test_compare_and_report_on_the_selection_folder_read_its_evaluation(tmp_path, capsys):
+    """compare/report --on select use each run's selection evaluation, not its evaluation folder's.
+    Closed case: pothole IoU 1/4 in A and 3/4 in B on the selection frames (+50 points, interval
+    [50, 50]) while both are equal on the evaluation frames (0 gain); a run without a selection
+    evaluation is one line."""
+    bench = _bench()
+    from _perception_data import CLASSES
+
+    n, k = len(CLASSES), CLASSES.index("pothole")
+    base = {"steps": 2250, "pretrain_steps": 2250, "batch": 16, "encoder": "efficientnet-lite0"}
+
+    def rows(i_pothole, frames=2):
+        i = [[2] * n for _ in range(frames)]
+        for r in i:
+            r[k] = i_pothole
+        return i, [[4] * n for _ in range(frames)]
+
+    def zeroshot(path, cfg, sel_pothole):
+        si, su = rows(sel_pothole, 3)
+        p = _run_json(path, "zeroshot", "e", cfg, *rows(2), select={"folder": "train", "stems": ["t0", "t1", "t2"],
+                                                                      "I": si, "U": su})
+        p.write_text(json.dumps({**json.loads(p.read_text()), "fraction": None, "name": "zeroshot"}))
+        return p
+
+    zeroshot(tmp_path / "a" / "run_zeroshot_na_seed0.json", base, 1)
+    b = zeroshot(tmp_path / "b" / "run_zeroshot_na_seed0.json", {**base, "encoder_lr": 0.1}, 3)
+    out = tmp_path / "sel.json"
+    assert bench.main(["compare", str(tmp_path / "a"), "--b", str(tmp_path / "b"), "--on", "select",
+                       "--bootstrap", "200", "--out", str(out)]) == 0
+    g = json.loads(out.read_text())["rows"]["zeroshot"]["gain"]["pothole"]
+    assert (g["gain"], g["lo"], g["hi"]) == pytest.approx((0.5, 0.5, 0.5))
+    assert "selection frames (`train`)" in out.with_suffix(".md").read_text()
+    assert bench.main(["compare", str(tmp_path / "a"), "--b", str(tmp_path / "b"), "--bootstrap", "200",
+                       "--out", str(tmp_path / "ev.json")]) == 0
+    assert json.loads((tmp_path / "ev.json").read_text())["rows"]["zeroshot"]["gain"]["pothole"]["gain"] == pytest.approx(0)
+    assert bench.main(["report", str(tmp_path / "b"), "--on", "select", "--bootstrap", "50",
+                       "--out", str(tmp_path / "rep")]) == 0
+    summary = json.loads((tmp_path / "rep" / "results.json").read_text())
+    assert summary["eval"] == {"folder": "train", "frames": 3}
+    assert summary["runs"]["zeroshot"]["pothole"]["mean"] == pytest.approx(0.75)
+    capsys.readouterr()
+    plain = _run_json(tmp_path / "c" / "run_zeroshot_na_seed0.json", "zeroshot", "e", base, *rows(1))
+    assert bench.main(["compare", str(plain), "--b", str(b), "--on", "select"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--select" in err and str(plain) in err
