@@ -62,7 +62,8 @@ from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_
 from _perception_frames import cmd_frames  # noqa: E402
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import compare_plot, gains_plot, grid_frames, prediction_grid  # noqa: E402
-from _perception_report import compare_markdown, compare_runs, iou_table, load_runs, markdown, summarize  # noqa: E402
+from _perception_report import (by_road, by_road_markdown, compare_markdown, compare_runs, iou_table,  # noqa: E402
+                                load_runs, markdown, summarize)
 from _perception_suite import gpu_ids, plan, run_suite  # noqa: E402
 from _perception_train import parse_style  # noqa: E402
 
@@ -307,14 +308,16 @@ def cmd_job(common: str, spec_text: str, log=print) -> None:
 
 
 def report(paths, out: Path, n_boot: int = 2000, grid_fraction: float = 0.1, log=print, as_trained: bool = False,
-           on: str = "eval") -> dict:
+           on: str = "eval", roads: bool = False) -> dict:
     runs = load_runs(paths, as_trained, on)
     summary = summarize(runs, n_boot)
+    if roads:
+        summary["by_road"] = by_road(runs)
     summary["as_trained"] = as_trained
     summary["cv"] = {f"{r['name']}": r["mix"] for r in runs if r.get("mix") and r["seed"] == min(x["seed"] for x in runs)}
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "results.json", summary)
-    md = markdown(summary)
+    md = markdown(summary) + ("\n" + by_road_markdown(summary["by_road"]) if roads else "")
     (out / "results.md").write_text(md)
     log(md)
     grids = [Path(p) / "eval_grid.npz" if Path(p).is_dir() else Path(p).parent / "eval_grid.npz" for p in paths]
@@ -415,6 +418,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True)
     r.add_argument("--bootstrap", type=int, default=2000, help="bootstrap resamples (default 2000, seeded)")
     r.add_argument("--grid-fraction", type=float, default=0.1, help="fraction shown in grid.jpg (default 0.1)")
+    r.add_argument("--by-road", action="store_true", help="also IoU per road of the evaluation frames (road_defects_br "
+                   "names), seeds pooled")
     r.add_argument("--on", choices=("eval", "select"), default="eval", help="eval (default): the runs' evaluation folder; select: their --select folder")
     r.add_argument("--as-trained", action="store_true", help="every run with its trained batch-norm statistics "
                    "(the as-trained evaluation of --bn-stats real runs): compares runs with and without AdaBN")
@@ -452,7 +457,8 @@ def main(argv=None) -> int:
         elif args.cmd == "choose-set":
             cmd_choose_set(args.records, Path(args.out), args.metric)
         else:
-            report(args.results, Path(args.out), args.bootstrap, args.grid_fraction, as_trained=args.as_trained, on=args.on)
+            report(args.results, Path(args.out), args.bootstrap, args.grid_fraction, as_trained=args.as_trained, on=args.on,
+                   roads=args.by_road)
     except RoadtwinError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -62,3 +62,39 @@ def test_no_camera_class_map_drops_only_the_camera_targets(tmp_path):
     assert with_camera.camera_targets == "road_defects_br" and without.camera_targets is None
     assert without.classes == with_camera.classes
     assert (without.plain, without.ego, without.dilate_px) == (with_camera.plain, with_camera.ego, with_camera.dilate_px)
+
+
+def test_elongation_of_a_bar_and_a_disc_follows_their_second_moments():
+    """A w x h bar of pixels: the variances of its columns and rows are (w^2 - 1)/12 and (h^2 - 1)/12
+    (discrete uniform), so its elongation is sqrt((w^2 - 1)/(h^2 - 1)); a disc's is 1."""
+    stats = _load("label_stats")
+    bar = np.zeros((100, 200), bool)
+    bar[40:46, 20:80] = True
+    assert stats.elongation(bar) == pytest.approx(np.sqrt((60 ** 2 - 1) / (6 ** 2 - 1)), rel=1e-6)
+    disc = np.zeros((200, 200), np.uint8)
+    cv2.circle(disc, (100, 100), 40, 1, -1)
+    assert stats.elongation(disc.astype(bool)) == pytest.approx(1.0, abs=0.01)
+
+
+def test_road_stats_count_each_roads_pothole_pixels_and_its_largest_component(tmp_path):
+    """Two roads of road_defects_br-named frames: RS_290 with a 20 x 100 px strip (2,000 px) and a
+    5 x 5 speck in one frame, DF_070 with a 10 x 10 hole in one of two frames. Its pothole pixels
+    per frame, its share of the folder's (2,025 / 2,125), the component its median pixel belongs to
+    (the strip, not the speck) and the frame with the most pothole pixels."""
+    stats = _load("label_stats")
+    a = np.zeros((320, 512), np.uint8)
+    a[100:200, 300:320] = 3                       # the strip: 100 rows x 20 columns
+    a[10:15, 10:15] = 3                           # a 25 px speck
+    b = np.zeros((320, 512), np.uint8)
+    b[250:260, 250:260] = 3
+    for name, lab in (("1_RS_290_a", a), ("2_DF_070_a", b), ("3_DF_070_b", np.zeros_like(b))):
+        cv2.imwrite(str(tmp_path / f"{name}.png"), lab)
+    roads = stats.road_stats(tmp_path)
+    assert list(roads) == ["RS_290", "DF_070"]                       # most pothole pixels first
+    rs, df = roads["RS_290"], roads["DF_070"]
+    assert (rs["frames"], rs["pothole_frames"], rs["components"]) == (1, 1, 2)
+    assert rs["pothole_px_per_frame"] == 2025 and df["pothole_px_per_frame"] == 50
+    assert rs["pothole_share"] == pytest.approx(2025 / 2125) and df["pothole_share"] == pytest.approx(100 / 2125)
+    assert rs["median_area_px"] == 2000
+    assert rs["median_elongation"] == pytest.approx(np.sqrt((100 ** 2 - 1) / (20 ** 2 - 1)), rel=1e-6)
+    assert rs["top_frame"] == "1_RS_290_a" and df["top_frame"] == "2_DF_070_a"

@@ -787,3 +787,27 @@ def test_compare_and_report_on_the_selection_folder_read_its_evaluation(tmp_path
     assert bench.main(["compare", str(plain), "--b", str(b), "--on", "select"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--select" in err and str(plain) in err
+
+
+def test_report_by_road_pools_seeds_per_road_of_the_evaluation_frames(tmp_path):
+    """report --by-road: IoU per road with the seeds' intersections and unions summed. Closed case:
+    frames f0, f1 on road RS_290 and f2 on DF_070; pothole I/U per frame 1/4, 1/4, 3/4 in seed 0 and
+    1/4, 3/4, 3/4 in seed 1 give RS_290 (1+1+1+3)/16 = 0.375 and DF_070 6/8 = 0.75; RS_290 holds
+    16 of the 24 pothole unions."""
+    bench = _bench()
+    from _perception_data import CLASSES
+
+    n, k = len(CLASSES), CLASSES.index("pothole")
+    stems = ["1_RS_290_f0", "2_RS_290_f1", "3_DF_070_f2"]
+    base = {"steps": 2250, "pretrain_steps": 2250, "batch": 16, "encoder": "efficientnet-lite0"}
+    for seed, inter in ((0, (1, 1, 3)), (1, (1, 3, 3))):
+        i = [[2] * n for _ in stems]
+        for row, v in zip(i, inter):
+            row[k] = v
+        p = _run_json(tmp_path / "runs" / f"run_real_100_seed{seed}.json", "real", "a", base, i, [[4] * n for _ in stems])
+        p.write_text(json.dumps({**json.loads(p.read_text()), "seed": seed, "eval": {"folder": "val", "stems": stems}}))
+    assert bench.main(["report", str(tmp_path / "runs"), "--by-road", "--bootstrap", "50", "--out", str(tmp_path / "rep")]) == 0
+    roads = json.loads((tmp_path / "rep" / "results.json").read_text())["by_road"]["real@100%"]
+    assert roads["RS_290"]["pothole"] == pytest.approx(0.375) and roads["DF_070"]["pothole"] == pytest.approx(0.75)
+    assert roads["RS_290"]["frames"] == 2 and roads["RS_290"]["pothole_union_share"] == pytest.approx(16 / 24)
+    assert "| real@100% | DF_070 | 1 | 75.0 |" in (tmp_path / "rep" / "results.md").read_text()
