@@ -1,4 +1,4 @@
-"""Built-in parametric defect types: pothole, depression, bump, rut, manhole, crack, patch.
+"""Built-in parametric defect types: pothole, depression, bump, rut, manhole, crack, patch, ravelling.
 
 Why a plugin: the built-ins register exactly as a third-party defect type would (entry point
 ``defects = "roadtwin_defects"`` in group ``roadtwin``), using only roadtwin_core's public API.
@@ -12,12 +12,13 @@ from .depression import Depression
 from .manhole import Manhole
 from .patch import Patch
 from .pothole import Pothole
+from .ravelling import Ravelling
 from .rut import Rut
 
-__all__ = ["Bump", "Crack", "Depression", "Manhole", "Patch", "Pothole", "Rut"]
+__all__ = ["Bump", "Crack", "Depression", "Manhole", "Patch", "Pothole", "Ravelling", "Rut"]
 
 
 @hookimpl
 def roadtwin_register_defect_types(register):
-    for thing in (Pothole(), Depression(), Bump(), Rut(), Manhole(), Crack(), Patch()):
+    for thing in (Pothole(), Depression(), Bump(), Rut(), Manhole(), Crack(), Patch(), Ravelling()):
         register(thing)

@@ -39,6 +39,7 @@ ROAD_MATERIAL_VARIANTS = {"asphalt": "asphalt_worn", "cobblestone": "cobblestone
 VERGE_MATERIAL_VARIANTS = {"grass": "grass", "gravel": "gravel", "soil": "soil"}
 # Defect types -> material; unknown types use the worn asphalt of the road around them.
 DEFECT_MATERIAL = {"pothole": "pothole", "crack": "crack", "rut": "worn", "depression": "worn",
+                   "ravelling": "pothole",     # lost surface course: the same exposed aggregate
                    "bump": "asphalt", "manhole": "cast_iron", "patch": "patch",
                    # look-alikes (plugins/roadtwin_lookalikes): not defects, each its own finish
                    "oil_stain": "oil_stain", "tar_stain": "tar", "sealed_crack": "tar", "patch_seam": "tar",
