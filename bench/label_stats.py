@@ -16,7 +16,7 @@ over the indices, so ``--every 5`` reads only the frames aimed at no defect).
 frames, the frames with a pothole, pothole pixels per frame, the road's share of the folder's
 pothole pixels, and the elongation (major / minor axis of the second moments: a disc 1, a w x h
 bar w/h) and area of the pothole component its median pothole pixel belongs to. Why: zero-shot scored 2-4 pothole IoU on the
-train frames and 11-13 on val; 97 % of train's pothole pixels are one road's (RS_290), labelled as
+train frames and 11-13 on val; 95 % of train's pothole pixels are one road's (RS_290), labelled as
 long wheel-path strips, where val's are compact holes. ``--figure OUT.jpg``: each road's frame
 with the most pothole pixels beside its labels (pothole red, crack green).
 """

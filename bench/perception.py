@@ -222,7 +222,7 @@ def one_run(args, ctx, arm, fraction, seed, device, log=print) -> Path:
         + f"  [{res['steps']} steps, {res['wall_seconds']:.0f} s wall, {res['steps_per_s']} steps/s]")
     if "select" in res:
         t = iou_table(np.array(res["select"]["I"]), np.array(res["select"]["U"]))
-        log(f"      on the selection folder: " + "  ".join(f"{c} {100 * t[c]:.1f}" for c in ("pothole", "crack", "ego_lane", "mIoU")))
+        log("      on the selection folder: " + "  ".join(f"{c} {100 * t[c]:.1f}" for c in ("pothole", "crack", "ego_lane", "mIoU")))
     return write_run(res, Path(args.out))
 
 
