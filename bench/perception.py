@@ -79,7 +79,8 @@ def _folders(args) -> tuple[Path, Path]:
 
 def _selection_folder(args, arms, train_dir: Path, eval_dir: Path) -> Path | None:
     """--select DIR, checked: never the evaluation folder (a choice made there is what it must
-    not inform), and the train folder only when every arm is zero-shot (the others train on it)."""
+    not inform) nor a folder named test, and the train folder only when every arm is zero-shot
+    (the others train on it)."""
     if not getattr(args, "select", None):
         return None
     sel = Path(args.select)
@@ -87,6 +88,9 @@ def _selection_folder(args, arms, train_dir: Path, eval_dir: Path) -> Path | Non
         raise RoadtwinError(f"--select {sel}: no such folder")
     if sel.resolve() == eval_dir.resolve():
         raise RoadtwinError(f"--select {sel}: is the evaluation folder; choose on other frames than those reported")
+    if "test" in {sel.resolve().name.lower(), sel.resolve().parent.name.lower()}:     # REAL/test or REAL/test/images
+        raise RoadtwinError(f"--select {sel}: a test folder never informs a choice (issue 21: the test roads are held "
+                            f"apart); select on train or val frames")
     trained_on = [LETTER[a] for a in arms if a != "zeroshot"]
     if sel.resolve() == train_dir.resolve() and trained_on:
         raise RoadtwinError(f"--select {sel}: arms {', '.join(trained_on)} train on these frames; only (e) zero-shot "

@@ -711,7 +711,7 @@ def test_select_evaluates_each_run_on_a_second_folder_and_refuses_the_reported_o
     give exactly the evaluation folder's intersections and unions (one model, one evaluation);
     with the real train folder (zero-shot only) the selection holds the train frames. Bad input,
     one line each and no output: the evaluation folder itself, the train folder with an arm that
-    trains on it, a folder that does not exist."""
+    trains on it, a folder that does not exist, a folder named test (held-out roads)."""
     pytest.importorskip("torch")
     bench = _bench()
     synth = make_standin_synthetic(tmp_path / "synth")
@@ -732,8 +732,10 @@ def test_select_evaluates_each_run_on_a_second_folder_and_refuses_the_reported_o
     assert sorted(run["select"]["stems"]) == train_stems != sorted(run["eval"]["stems"])
     assert np.array(run["select"]["U"]).shape == (len(train_stems), np.array(run["U"]).shape[1])
     capsys.readouterr()
+    held_apart = tmp_path / "test"
+    shutil.copytree(TINY / "val", held_apart)
     for sel, arms, says in ((TINY / "val", ["e"], "evaluation folder"), (TINY / "train", ["a", "e"], "arms a train"),
-                            (tmp_path / "nowhere", ["e"], "no such folder")):
+                            (tmp_path / "nowhere", ["e"], "no such folder"), (held_apart, ["e"], "test folder")):
         bad = tmp_path / "bad"
         assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", *arms,
                            "--seeds", "0", "--select", str(sel), "--out", str(bad)]) == 2
