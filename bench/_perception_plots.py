@@ -117,7 +117,7 @@ def compare_plot(cmp: dict, path: Path, metrics=("pothole", "crack", "ego_lane",
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from _perception_report import differ_text
+    from _perception_report import compare_where, differ_text
 
     names = list(cmp["rows"])
     fig, ax = plt.subplots(figsize=(max(6.4, 1.6 + 1.9 * len(names) * len(metrics) / 4), 3.8))
@@ -133,7 +133,9 @@ def compare_plot(cmp: dict, path: Path, metrics=("pothole", "crack", "ego_lane",
     ax.set_xticks(range(len(names)), [f"{n}\nseeds {', '.join(map(str, cmp['rows'][n]['seeds']))}" for n in names])
     ax.set_ylabel("gain of B over A (IoU points)")
     ax.grid(axis="y", alpha=0.3)
-    ax.set_title(f"B over A ({differ_text(cmp)}); seeds pooled, 95 % paired bootstrap", fontsize=9)
+    where = compare_where(cmp).replace("`", "")
+    ax.set_title(f"B over A ({differ_text(cmp)})\non {where}; seeds pooled, 95 % paired bootstrap",
+                 fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)

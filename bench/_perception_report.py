@@ -269,18 +269,25 @@ def compare_runs(paths_a, paths_b, n_boot: int = 2000, boot_seed: int = 0, on: s
                                              n_boot, boot_seed)}
     if not rows:
         raise RoadtwinError("compare: no run (arm, fraction, seed) is on both sides")
-    return {"a": a[0]["_file"], "b": b[0]["_file"], "on": on, "folder": a[0]["eval"]["folder"], "differ": {k: [ka.get(k), kb.get(k)] for k in sorted(ka.keys() | kb.keys())
-                                                               if ka.get(k) != kb.get(k)}, "rows": rows}
+    differ = {k: [ka.get(k), kb.get(k)] for k in sorted(ka.keys() | kb.keys()) if ka.get(k) != kb.get(k)}
+    return {"a": a[0]["_file"], "b": b[0]["_file"], "on": on, "folder": a[0]["eval"]["folder"], "differ": differ,
+            "rows": rows}
 
 
 def differ_text(cmp: dict) -> str:
-    """What tells ``compare``'s two configurations apart, as "key A -> B, ..."."""
-    return ", ".join(f"{k} {va} -> {vb}" for k, (va, vb) in cmp["differ"].items()) or "the same configuration"
+    """What tells ``compare``'s two configurations apart, as "key A -> B, ..."; where the recorded
+    configurations agree (e.g. two synthetic sets), the folders the runs came from."""
+    return (", ".join(f"{k} {va} -> {vb}" for k, (va, vb) in cmp["differ"].items())
+            or f"the same configuration: {Path(cmp['a']).parent.name} -> {Path(cmp['b']).parent.name}")
+
+
+def compare_where(cmp: dict) -> str:
+    """Which frames ``compare`` scored: "the selection frames (`folder`)" or the evaluation ones."""
+    return f"the {'selection' if cmp.get('on') == 'select' else 'evaluation'} frames (`{cmp.get('folder', '?')}`)"
 
 
 def compare_markdown(cmp: dict) -> str:
-    where = "selection" if cmp.get("on") == "select" else "evaluation"
-    lines = [f"B over A ({differ_text(cmp)}); on the {where} frames (`{cmp.get('folder', '?')}`), paired bootstrap 95 % "
+    lines = [f"B over A ({differ_text(cmp)}); on {compare_where(cmp)}, paired bootstrap 95 % "
              "interval over them, seeds pooled.", "",
              "| run | seeds | " + " | ".join(f"{m} A / B: gain [interval]" for m in METRICS) + " |",
              "|---|---|" + "---|" * len(METRICS)]

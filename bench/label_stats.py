@@ -117,12 +117,13 @@ def road_stats(folder: Path, every: int = 1) -> dict:
             for road, r in sorted(roads.items(), key=lambda kv: -kv[1]["pothole_px"])}
 
 
-def road_figure(folders: list[Path], out: Path) -> Path:
+def road_figure(stats: dict[Path, dict], out: Path) -> Path:
     """Each road's frame with the most pothole pixels (images/ beside labels/), its labels laid over
-    it (pothole red, crack green), one row per road, the road's name written on it."""
+    it (pothole red, crack green), one row per road, the road's name written on it. ``stats``: per
+    label folder, its :func:`road_stats`."""
     rows = []
-    for folder in folders:
-        for road, r in road_stats(folder).items():
+    for folder, roads in stats.items():
+        for road, r in roads.items():
             if r["top_frame"] is None:
                 continue
             stem = r["top_frame"]
@@ -155,14 +156,15 @@ def main() -> None:
     ap.add_argument("--by-road", action="store_true", help="pothole pixels, shares and component shapes per road")
     ap.add_argument("--figure", type=Path, help="each road's frame with the most pothole pixels, labels over it (.jpg or .png)")
     args = ap.parse_args()
+    roads = {folder: road_stats(folder, args.every) for folder in args.folders} if args.figure or args.by_road else {}
     if args.figure:
-        print(f"wrote {road_figure(args.folders, args.figure)}")
+        print(f"wrote {road_figure(roads, args.figure)}")
     if args.by_road:
         print("| labels | road | frames | with pothole | pothole px / frame | share of the pothole pixels | "
               "components | elongation (pixel median) | component area px (pixel median) |")
         print("|---|---|---|---|---|---|---|---|---|")
-        for folder in args.folders:
-            for road, r in road_stats(folder, args.every).items():
+        for folder, per_road in roads.items():
+            for road, r in per_road.items():
                 fmt = lambda v, spec: "-" if v is None else format(v, spec)
                 print(f"| {folder} | {road} | {r['frames']} | {r['pothole_frames']} | {r['pothole_px_per_frame']:.0f} | "
                       f"{100 * r['pothole_share']:.1f} % | {r['components']} | {fmt(r['median_elongation'], '.2f')} | "

@@ -23,6 +23,7 @@ PROFILES = ("circular", "parabolic", "cosine")
 class Bump:
     name = "bump"
     description = "Speed bump/hump across the lane: circular, parabolic or cosine cross-section."
+    along_travel = True     # placed with the lane's direction (contracts.DefectType)
 
     @dataclass
     class Params:

@@ -18,7 +18,7 @@ from shapely.strtree import STRtree
 from ..errors import RoadtwinError
 from ..model import ComposeRules, DefectModel, Placement, RoadSegment, triangle_areas
 
-ALONG_TRAVEL = {"rut", "bump", "ravelling"}
+ALONG_TRAVEL = {"rut", "bump"}   # place_defects' default; compose adds every registered type whose along_travel is True
 MAX_TRIES = 400
 WHEEL_PATH_OFFSET_M = 0.85   # half the track of a passenger car: wheel paths sit this far off the lane centre
 WHEEL_PATH_HALF_WIDTH_M = 0.35

@@ -21,8 +21,8 @@ __all__ = ["colorize_instances", "colorize_labels", "colorize_normals", "coloriz
 def palette(n: int, names: Sequence[str]) -> np.ndarray:
     fixed = {"background": (70, 130, 180), "driving": (128, 64, 128), "ego_lane": (128, 64, 128), "junction": (160, 120, 160),
              "sidewalk": (244, 35, 232), "shoulder": (152, 251, 152), "pothole": (220, 20, 60),
-             "crack": (255, 200, 0), "depression": (0, 0, 230), "bump": (0, 220, 220), "rut": (255, 120, 0), "ravelling": (190, 60, 90),
-             "manhole": (110, 110, 110), "lane_marking": (157, 234, 50), "patch": (170, 90, 255)}
+             "crack": (255, 200, 0), "depression": (0, 0, 230), "bump": (0, 220, 220), "rut": (255, 120, 0),
+             "ravelling": (190, 60, 90), "manhole": (110, 110, 110), "lane_marking": (157, 234, 50), "patch": (170, 90, 255)}
     rng = np.random.default_rng(12345)
     pal = rng.integers(40, 255, size=(256, 3)).astype(np.uint8)
     for i, name in enumerate(names[:n]):
