@@ -66,6 +66,43 @@ def check_leak(folder, sources: set[str] | None, held: list[str], where: str) ->
     return True
 
 
+def defect_source_frames(folder) -> set[str] | None:
+    """Stems of the real frames whose *labelled defects* the synthetic set wears (photo library
+    assets), or None (no provenance). A set recorded before scenes were kept: all its frames."""
+    path = Path(folder) / SOURCES_FILE
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text())
+        if "scenes" not in record:
+            return {frame_stem(f) for f in record["frames"]}
+        return {frame_stem(f) for scene in record["scenes"].values() for f in scene["defect_assets"].values() if f}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise RoadtwinError(f"{path}: not a provenance record of bench/synthetic_set.py ({exc.__class__.__name__})") from None
+
+
+def check_selection_sources(synthetic, select_dir, stems: list[str]) -> dict | None:
+    """Refuse a selection folder whose frames lent their labelled defects to the synthetic set:
+    a choice made there would reward recognising its own pothole and crack pixels (the photo
+    set's +7 train pothole, docs/perception/efficientnet/photo_vs_parametric). Frames that gave
+    only label-free road texture are counted, not refused. None when there is nothing to check."""
+    if synthetic is None:
+        return None
+    defects, every = defect_source_frames(synthetic), synthetic_sources(synthetic)
+    if every is None:
+        return {"sources_known": False}
+    held = [frame_stem(s) for s in stems]
+    leaked = sorted(s for s in held if s in defects)
+    if leaked:
+        roads = sorted({road_of(s) for s in leaked})
+        raise RoadtwinError(
+            f"--select {select_dir}: {len(leaked)} of its {len(held)} frames ({', '.join(roads[:4])}"
+            f"{' ...' if len(roads) > 4 else ''}; e.g. {leaked[0]}) lent their labelled defects to "
+            f"{Path(synthetic) / SOURCES_FILE}, so the selection would score the set on its own sources; select on "
+            f"frames the photo library was not built from")
+    return {"sources_known": True, "road_texture_frames": sum(s in every for s in held)}
+
+
 def labels_beyond_fraction(real: Frames, subset: Frames, sources: set[str] | None) -> list[str] | None:
     """Train frames outside a fraction's real subset that the synthetic set was made from (their
     labels cut its photo defects and defect-free road textures): labels the fraction's arms are not

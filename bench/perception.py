@@ -25,7 +25,8 @@ seeds, paired bootstrap 95 % intervals of each arm's gain over (a) at the same f
 evaluation frames: `--test DIR` evaluates on the held-out roads instead of val. A choice the
 evaluation frames must not make is made on a selection folder (`--select DIR`: every run is also
 evaluated there; `report`/`compare --on select` read that evaluation). Zero-shot (e) trains on no
-real frame, so for it the real train folder is a fair selection split.
+real frame, so for it the real train folder is a fair selection split, unless the synthetic set
+wears those frames' labelled defects (a photo library cut from them; refused by its sources.json).
 
 Subcommands:
   pack SRC DST    a dataset folder -> DST/images/*.jpg + labels/*.png (+ classes.json) at 512x320
@@ -58,7 +59,8 @@ from roadtwin_core.errors import RoadtwinError  # noqa: E402
 import _segnet  # noqa: E402
 from _perception_arms import ARMS, BN_STATS, LETTER, SYNTHETIC_ARMS, Config, make_model, run_arm, write_run  # noqa: E402
 from _perception_cv import (choose_set, cross_validate, cv_path, cv_point, grid_points,  # noqa: E402
-                            labels_beyond_fraction, leak_guard, parse_mix, synthetic_sources, write_json)
+                            check_selection_sources, labels_beyond_fraction, leak_guard, parse_mix, synthetic_sources,
+                            write_json)
 from _perception_frames import cmd_frames  # noqa: E402
 from _perception_data import check_class_maps, load_frames, pack, parse_size, real_subset  # noqa: E402
 from _perception_plots import compare_plot, gains_plot, grid_frames, prediction_grid  # noqa: E402
@@ -140,6 +142,10 @@ def prepare(args, log=print) -> dict:
         check_class_maps(train_dir, args.synthetic)
     cv_dirs = _cv_synthetic_dirs(args, arms, train_dir)
     select_dir = _selection_folder(args, arms, train_dir, eval_dir)
+    select_sources = None if select_dir is None else check_selection_sources(      # its own defects: one line
+        args.synthetic if synth_needed else None, select_dir, sorted(p.stem for p in (select_dir / "images").glob("*")))
+    if select_sources and select_sources.get("road_texture_frames"):
+        log(f"note: {select_sources['road_texture_frames']} selection frames gave label-free road texture to the synthetic set")
     cache = Path(args.out) / "shared"
     t0 = time.perf_counter()
     real = load_frames(train_dir, cfg.size, args.limit_frames, cache)
@@ -161,7 +167,7 @@ def prepare(args, log=print) -> dict:
         f"{len(synth.stems) if synth else 0} ({args.synthetic}); {size[0]}x{size[1]}; loaded in {time.perf_counter() - t0:.1f} s"
         + (f"; selection {len(selectset.stems)} ({select_dir})" if selectset is not None else ""))
     return {"arms": arms, "cfg": cfg, "real": real, "evalset": evalset, "synth": synth, "cache": cache, "keep": keep,
-            "cv_synth": cv_synth, "selectset": selectset}
+            "cv_synth": cv_synth, "selectset": selectset, "select_sources": select_sources}
 
 
 def _cv_synthetic_dirs(args, arms, train_dir) -> list[str]:
@@ -225,6 +231,8 @@ def one_run(args, ctx, arm, fraction, seed, device, log=print) -> Path:
                                                                       ("pothole", "crack", "ego_lane", "mIoU", "mIoU_fg"))
         + f"  [{res['steps']} steps, {res['wall_seconds']:.0f} s wall, {res['steps_per_s']} steps/s]")
     if "select" in res:
+        if ctx.get("select_sources") is not None:
+            res["select"]["synthetic_sources"] = ctx["select_sources"]
         t = iou_table(np.array(res["select"]["I"]), np.array(res["select"]["U"]))
         log("      on the selection folder: " + "  ".join(f"{c} {100 * t[c]:.1f}" for c in ("pothole", "crack", "ego_lane", "mIoU")))
     return write_run(res, Path(args.out))

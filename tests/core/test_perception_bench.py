@@ -813,3 +813,35 @@ def test_report_by_road_pools_seeds_per_road_of_the_evaluation_frames(tmp_path):
     assert roads["RS_290"]["pothole"] == pytest.approx(0.375) and roads["DF_070"]["pothole"] == pytest.approx(0.75)
     assert roads["RS_290"]["frames"] == 2 and roads["RS_290"]["pothole_union_share"] == pytest.approx(16 / 24)
     assert "| real@100% | DF_070 | 1 | 75.0 |" in (tmp_path / "rep" / "results.md").read_text()
+
+
+def test_select_refuses_frames_whose_defects_the_synthetic_set_wears(tmp_path, capsys):
+    """A photo set made from the train frames holds their labelled potholes as textures, so
+    selecting on those frames scores the set on its own sources (the photo set: train pothole
+    +7.3, val -7.2; docs/perception/efficientnet/photo_vs_parametric). One line, nothing written.
+    A frame that only gave label-free road texture is counted in the run's record, not refused."""
+    pytest.importorskip("torch")
+    bench = _bench()
+    train_stems = sorted(p.stem for p in (TINY / "train" / "images").glob("*.jpg"))
+    synth = make_standin_synthetic(tmp_path / "synth")
+    record = {"frames": train_stems[:2], "scenes": {"highway_a": {
+        "defect_assets": {"photo_pothole_0": train_stems[0]}, "road_materials": {"photo_asphalt_0": [train_stems[1]]}}}}
+    (synth / "sources.json").write_text(json.dumps(record))
+    bad = tmp_path / "bad"
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "e", "--seeds", "0",
+                       "--select", str(TINY / "train"), "--out", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--select" in err and "1 of its" in err and train_stems[0] in err
+    assert str(synth / "sources.json") in err and not bad.exists()
+    record["scenes"]["highway_a"]["defect_assets"] = {}                  # road texture only: allowed, counted
+    record["frames"] = [train_stems[1]]
+    (synth / "sources.json").write_text(json.dumps(record))
+    out = tmp_path / "out"
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "e", "--seeds", "0",
+                       "--select", str(TINY / "train"), "--out", str(out)]) == 0
+    run = json.loads((out / "run_zeroshot_na_seed0.json").read_text())
+    assert run["select"]["synthetic_sources"] == {"sources_known": True, "road_texture_frames": 1}
+    (synth / "sources.json").write_text(json.dumps({"frames": [train_stems[2]]}))   # older record: frames only
+    assert bench.main(["train", "--real", str(TINY), "--synthetic", str(synth), *SMALL, "--arms", "e", "--seeds", "0",
+                       "--select", str(TINY / "train"), "--out", str(tmp_path / "old")]) == 2
+    assert train_stems[2] in capsys.readouterr().err
