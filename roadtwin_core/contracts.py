@@ -29,10 +29,12 @@ __all__ = ["DefectType", "Reconstructor", "Merger", "LayoutImporter", "Renderer"
 class DefectType(Protocol):
     """A parametric defect generator. Same params and rng state give the same model.
 
-    Two optional class attributes, read with defaults (a type without them is a defect at a
-    random yaw): ``semantic_class`` (default ``"road_defect"``; another class, e.g. a look-alike's
-    ``"road_lookalike"``, is labelled ``["road", <class>, <name>]``) and ``along_travel`` (default
-    False: True yaws instances with the lane, like ruts). docs/plugins.md#roadtwin_register_defect_types."""
+    Three optional class attributes, read with defaults (a type without them is a defect at a
+    random yaw in worn asphalt): ``semantic_class`` (default ``"road_defect"``; another class, e.g.
+    a look-alike's ``"road_lookalike"``, is labelled ``["road", <class>, <name>]``), ``along_travel``
+    (default False: True yaws instances with the lane, like ruts) and ``material`` (default
+    ``"worn"``: the catalog material its surface wears, one of ``roadtwin_core.looks.all_materials()``;
+    a model with its own texture wears that instead). docs/plugins.md#roadtwin_register_defect_types."""
 
     name: str
     description: str

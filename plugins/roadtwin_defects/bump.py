@@ -22,6 +22,7 @@ PROFILES = ("circular", "parabolic", "cosine")
 
 class Bump:
     name = "bump"
+    material = "asphalt"      # the catalog material it wears (contracts.DefectType): fresh asphalt
     description = "Speed bump/hump across the lane: circular, parabolic or cosine cross-section."
     along_travel = True     # placed with the lane's direction (contracts.DefectType)
 

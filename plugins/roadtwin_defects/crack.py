@@ -28,6 +28,7 @@ from ._mesh import build_defect, densify_closed, densify_open
 
 class Crack:
     name = "crack"
+    material = "crack"      # the catalog material it wears (contracts.DefectType): the dark crack finish
     description = "Branching hairline-to-open crack network: narrow shallow V-groove tree."
 
     @dataclass

@@ -18,6 +18,7 @@ from ._mesh import build_defect, closed_length, cosine_bell, loop_spacing, resam
 
 class Depression:
     name = "depression"
+    material = "worn"      # the catalog material it wears (contracts.DefectType): the worn asphalt around it
     description = "Shallow wide smooth dip (settlement), elliptical, cosine-bell profile."
 
     @dataclass

@@ -26,6 +26,7 @@ def _circle(radius: float, n: int, phase: float = 0.0) -> np.ndarray:
 
 class Manhole:
     name = "manhole"
+    material = "cast_iron"      # the catalog material it wears (contracts.DefectType): the cover
     description = "Circular cover + frame sunk or raised 0.5-3 cm, with a steep ramp to the road."
 
     @dataclass

@@ -52,6 +52,7 @@ def inner_distance(xy: np.ndarray, half_x: float, half_y: float, corner: float) 
 
 class Patch:
     name = "patch"
+    material = "patch"      # the catalog material it wears (contracts.DefectType): newer, darker asphalt
     description = "Repaired rectangle of fresh asphalt: flush or up to ~1 cm proud, short edge bevel."
 
     @dataclass

@@ -22,6 +22,7 @@ _HARMONICS = np.arange(2, 9)  # rim harmonics k = 2..8 (k = 1 would only shift t
 
 class Pothole:
     name = "pothole"
+    material = "pothole"      # the catalog material it wears (contracts.DefectType): coarse exposed aggregate
     description = "Irregular broken-out bowl: steep walls, rough flat-ish floor (2-10 cm deep)."
 
     @dataclass

@@ -22,6 +22,7 @@ from .rut import Rut
 
 class Ravelling(Rut):
     name = "ravelling"
+    material = "pothole"      # the catalog material it wears (contracts.DefectType): lost surface course: the pothole's exposed aggregate
     description = "Wheel-path strip of lost surface course (exposed aggregate) along travel (+x)."
 
     @dataclass

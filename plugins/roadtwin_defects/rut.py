@@ -24,6 +24,7 @@ from ._mesh import build_defect, cosine_bell, resample_closed
 
 class Rut:
     name = "rut"
+    material = "worn"      # the catalog material it wears (contracts.DefectType): the worn asphalt around it
     description = "Long shallow wheel-path groove along travel (+x), smooth cross-section."
     along_travel = True     # placed with the lane's direction (contracts.DefectType)
 

@@ -2,12 +2,13 @@
 
 Each is a defect type by contract (``name``, ``Params``, ``sample_params``, ``generate``), so a
 layout weights it like any defect (``roadtwin:rules:weight:oil_stain = 2``) and compose places,
-merges and binds it the same way. Two optional attributes tell the core what it is:
+merges and binds it the same way. Three optional attributes tell the core what it is:
 
 * ``semantic_class = "road_lookalike"``: the stage labels the instance
   ``["road", "road_lookalike", <type>]`` (not ``road_defect``), so a USD consumer counts it as
   road; class maps list the type names under the road / ego-lane class (never crack or pothole);
-* ``along_travel = True``: placed with the lane's direction (tyre marks, paint, joint seams).
+* ``along_travel = True``: placed with the lane's direction (tyre marks, paint, joint seams);
+* ``material``: the catalog finish it wears (tar, oil, rubber, paint, water, debris).
 
 Sizes are what a survey camera sees on Brazilian two-lane highways: drips and stains 0.2-1.5 m,
 tar-sealed crack bands 3-8 cm wide, skid marks 15-30 cm wide and metres long, paint dashes
@@ -37,6 +38,7 @@ class _LookAlike:
     description = ""
     semantic_class = SEMANTIC_CLASS
     along_travel = False
+    material = "worn"       # each type names its own finish (contracts.DefectType)
 
     def _footprint(self, p, rng: np.random.Generator) -> Footprint:
         raise NotImplementedError
@@ -72,11 +74,13 @@ class _Blob(_LookAlike):
 
 class OilStain(_Blob):
     name = "oil_stain"
+    material = "oil_stain"
     description = "Look-alike: dark engine-oil drip stain, soft irregular blob, flush."
 
 
 class TarStain(_Blob):
     name = "tar_stain"
+    material = "tar"
     description = "Look-alike: spilled or bled tar, near-black glossy blob ~1 mm proud."
     _size = (0.15, 0.8)
     _height = 0.001
@@ -84,6 +88,7 @@ class TarStain(_Blob):
 
 class WetPatch(_Blob):
     name = "wet_patch"
+    material = "wet_patch"
     description = "Look-alike: damp area (darker, glossier asphalt), large soft blob, flush."
     _size = (0.6, 3.0)
     _rough = (0.4, 0.9)
@@ -91,6 +96,7 @@ class WetPatch(_Blob):
 
 class Puddle(_Blob):
     name = "puddle"
+    material = "puddle"
     description = "Look-alike: standing water in a shallow low spot, mirror-smooth and dark, flush."
     _size = (0.3, 1.6)
     _rough = (0.15, 0.45)
@@ -98,6 +104,7 @@ class Puddle(_Blob):
 
 class Debris(_Blob):
     name = "debris"
+    material = "debris"
     description = "Look-alike: loose gravel, soil and litter scattered on the lane, ~2 mm."
     _size = (0.3, 1.4)
     _rough = (0.6, 1.2)
@@ -133,11 +140,13 @@ class _Band(_LookAlike):
 
 class SealedCrack(_Band):
     name = "sealed_crack"
+    material = "tar"
     description = "Look-alike: crack filled with tar, a meandering near-black band 3-8 cm wide, ~1 mm proud."
 
 
 class TyreMark(_Band):
     name = "tyre_mark"
+    material = "tyre_mark"
     description = "Look-alike: skid or tyre mark, a dark rubber band 15-30 cm wide, metres long, flush."
     along_travel = True
     _length = (2.0, 9.0)
@@ -152,6 +161,7 @@ class PatchSeam(_LookAlike):
     joint (a footprint may not enclose road, so never all four sides)."""
 
     name = "patch_seam"
+    material = "tar"
     description = "Look-alike: tar-sealed joint of a repair or lane seam (C, L or straight band), ~1 mm proud."
     along_travel = True
 
@@ -178,6 +188,7 @@ class WornPaint(_LookAlike):
     where the old markings were before a re-striping, a paler, smoother rectangle."""
 
     name = "worn_paint"
+    material = "paint_worn"
     description = "Look-alike: a worn-through paint dash (patchy white on asphalt), ~1 mm proud."
     along_travel = True
     _height = 0.001
@@ -198,6 +209,7 @@ class WornPaint(_LookAlike):
 
 class GhostPaint(WornPaint):
     name = "ghost_paint"
+    material = "paint_ghost"
     description = "Look-alike: ghost of a removed paint dash (ground-off, paler and smoother asphalt), flush."
     _height = 0.0
 

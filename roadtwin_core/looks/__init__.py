@@ -11,9 +11,9 @@ world-planar (st = xy / ST_TILE_M).
 """
 import importlib
 
-from .catalog import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL_MATERIALS, ROAD_MATERIAL_VARIANTS,
-                      ST_TILE_M, VERGE_MATERIAL_VARIANTS, MaterialSpec, all_materials, defect_material, kind_material,
-                      marking_material)
+from .catalog import (DEFAULT_DEFECT_MATERIAL, DEFECT_FINISHES, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL_MATERIALS,
+                      ROAD_MATERIAL_VARIANTS, ST_TILE_M, VERGE_MATERIAL_VARIANTS, MaterialSpec, all_materials,
+                      kind_material, marking_material)
 
 _LAZY = {"write_textures": ".textures", "write_textures_cached": ".cache"}
 
@@ -25,6 +25,6 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["DEFECT_MATERIAL", "KIND_MATERIAL", "MARKING_MATERIAL", "OPTIONAL_MATERIALS", "ROAD_MATERIAL_VARIANTS",
-           "ST_TILE_M", "VERGE_MATERIAL_VARIANTS", "MaterialSpec", "all_materials", "defect_material", "kind_material",
-           "marking_material", "write_textures", "write_textures_cached"]
+__all__ = ["DEFAULT_DEFECT_MATERIAL", "DEFECT_FINISHES", "KIND_MATERIAL", "MARKING_MATERIAL", "OPTIONAL_MATERIALS",
+           "ROAD_MATERIAL_VARIANTS", "ST_TILE_M", "VERGE_MATERIAL_VARIANTS", "MaterialSpec", "all_materials",
+           "kind_material", "marking_material", "write_textures", "write_textures_cached"]

@@ -37,14 +37,12 @@ ROAD_MATERIAL_VARIANTS = {"asphalt": "asphalt_worn", "cobblestone": "cobblestone
 # The unpaved strip beyond the shoulder: a ``vergeMaterial`` variant set (or a renderer's domain
 # randomisation) may switch the material of verge surfaces among these.
 VERGE_MATERIAL_VARIANTS = {"grass": "grass", "gravel": "gravel", "soil": "soil"}
-# Defect types -> material; unknown types use the worn asphalt of the road around them.
-DEFECT_MATERIAL = {"pothole": "pothole", "crack": "crack", "rut": "worn", "depression": "worn",
-                   "ravelling": "pothole",     # lost surface course: the same exposed aggregate
-                   "bump": "asphalt", "manhole": "cast_iron", "patch": "patch",
-                   # look-alikes (plugins/roadtwin_lookalikes): not defects, each its own finish
-                   "oil_stain": "oil_stain", "tar_stain": "tar", "sealed_crack": "tar", "patch_seam": "tar",
-                   "tyre_mark": "tyre_mark", "wet_patch": "wet_patch", "puddle": "puddle", "debris": "debris",
-                   "worn_paint": "paint_worn", "ghost_paint": "paint_ghost"}
+# Finishes a defect type may name as its ``material`` (contracts.DefectType; the type says which,
+# core names no type); a type that names none wears the worn asphalt of the road around it.
+DEFECT_FINISHES = ("pothole", "crack", "worn", "asphalt", "cast_iron", "patch",
+                   # look-alikes' finishes (plugins/roadtwin_lookalikes)
+                   "oil_stain", "tar", "tyre_mark", "wet_patch", "puddle", "debris", "paint_worn", "paint_ghost")
+DEFAULT_DEFECT_MATERIAL = "worn"
 MARKING_MATERIAL = {"white": "paint_white", "yellow": "paint_yellow"}
 # Written and authored like the others but bound by no default rule: a user (or a variant) binds them.
 OPTIONAL_MATERIALS = ("pothole_wet",)
@@ -53,16 +51,12 @@ OPTIONAL_MATERIALS = ("pothole_wet",)
 def all_materials() -> list[str]:
     """Every material name the catalog uses (what a looks layer authors)."""
     return sorted({*KIND_MATERIAL.values(), *ROAD_MATERIAL_VARIANTS.values(),
-                   *VERGE_MATERIAL_VARIANTS.values(), *DEFECT_MATERIAL.values(),
+                   *VERGE_MATERIAL_VARIANTS.values(), *DEFECT_FINISHES,
                    *MARKING_MATERIAL.values(), "asphalt", "worn", "paint_white", *OPTIONAL_MATERIALS})
 
 
 def kind_material(kind: str) -> str:
     return KIND_MATERIAL.get(kind, "asphalt")
-
-
-def defect_material(defect_type: str) -> str:
-    return DEFECT_MATERIAL.get(defect_type, "worn")
 
 
 def marking_material(color: str) -> str:

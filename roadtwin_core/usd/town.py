@@ -26,14 +26,15 @@ reference: a referenced crate's points would lose to the layout's planar ones.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
 from pxr import Sdf, UsdGeom, UsdPhysics
 
 from ..errors import RoadtwinError
-from ..looks.catalog import ROAD_MATERIAL_VARIANTS, MaterialSpec, defect_material, kind_material, marking_material
+from ..looks.catalog import (DEFAULT_DEFECT_MATERIAL, ROAD_MATERIAL_VARIANTS, MaterialSpec, kind_material,
+                             marking_material)
 from ..town.markings import MarkingMesh
 from ..model import MergedSegment, Placement, RoadSegment, TownLayout
 from ..town.props import Props
@@ -61,15 +62,19 @@ class TownParts:
     markings: list[MarkingMesh] = field(default_factory=list)
     materials: dict[str, MaterialSpec] = field(default_factory=dict)  # name -> spec (textures/ beside town.usda)
     semantic_classes: dict[str, str] = field(default_factory=dict)    # defect type -> class (default road_defect)
+    defect_materials: dict[str, str] = field(default_factory=dict)    # defect type -> catalog material (default worn)
     props: Props | None = None            # the roadside world (layers/props.usda); None: no props layer
     road_textures: dict[str, str] = field(default_factory=dict)  # extra roadMaterial variant -> material (in materials)
     road_material: str = DEFAULT_ROAD_MATERIAL  # the roadMaterial variant selected
 
 
-def defect_material_name(p: Placement) -> str:
+def defect_material_name(p: Placement, materials: Mapping[str, str]) -> str:
     """The material a defect instance's pieces wear: its model's own texture (a photo-made
-    asset: ``decal_<model>``) or its type's material from the catalog."""
-    return f"decal_{p.model.name}" if p.model.look is not None else defect_material(p.model.defect_type)
+    asset: ``decal_<model>``) or the catalog material its type names (``materials``: defect type
+    -> material, from each type's ``material``; default worn asphalt)."""
+    if p.model.look is not None:
+        return f"decal_{p.model.name}"
+    return materials.get(p.model.defect_type, DEFAULT_DEFECT_MATERIAL)
 
 
 def defect_st(p: Placement, vertices: np.ndarray) -> np.ndarray:
@@ -256,7 +261,7 @@ def _write_looks_layer(outdir: Path, doc: str, parts: TownParts, pieces: _Pieces
     looks = _readable_layer(outdir, "looks", lay.name, doc + ": materials and their bindings")
     bindings = [(seg.prim_path, kind_material(seg.kind)) for seg in lay.segments if seg.kind not in VARIANT_KINDS]
     for i, p in enumerate(parts.placements):
-        material = defect_material_name(p)
+        material = defect_material_name(p, parts.defect_materials)
         bindings += [(f"{root}/Defects/{p.instance_id}/{seg_id}", material) for seg_id, _, _ in pieces.get(i, [])]
     bindings += [(f"{root}/{MARKING_MESHES}/{name}", marking_material(m.color)) for name, m in zip(marking_names, parts.markings)]
     decals, decal_folders = decal_materials(outdir, parts.placements, parts.library_files)

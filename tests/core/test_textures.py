@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 from roadtwin_core import RoadtwinError
-from roadtwin_core.looks import (DEFECT_MATERIAL, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL_MATERIALS,
+from roadtwin_core.looks import (DEFECT_FINISHES, KIND_MATERIAL, MARKING_MATERIAL, OPTIONAL_MATERIALS,
                                  ROAD_MATERIAL_VARIANTS, ST_TILE_M, VERGE_MATERIAL_VARIANTS, all_materials,
                                  write_textures)
 
@@ -69,7 +69,7 @@ def all_files(spec) -> list[str]:
 def test_every_catalog_material_has_a_spec_with_existing_files(textures):
     folder, specs, _ = textures
     used = {*KIND_MATERIAL.values(), *ROAD_MATERIAL_VARIANTS.values(), *VERGE_MATERIAL_VARIANTS.values(),
-            *DEFECT_MATERIAL.values(), *MARKING_MATERIAL.values(), *OPTIONAL_MATERIALS, "asphalt", "worn"}
+            *DEFECT_FINISHES, *MARKING_MATERIAL.values(), *OPTIONAL_MATERIALS, "asphalt", "worn"}
     assert used <= set(all_materials()) <= set(specs)
     for name, spec in specs.items():
         assert spec.name == name

@@ -256,8 +256,6 @@ def test_ravelling_is_a_long_shallow_wheel_path_strip_with_the_ruts_volume(types
     """Ravelling keeps the rut's section, so the rut's closed-form volume holds; sampled strips run
     along travel, 3-15 m long, 0.4-1.1 m wide, 1-3 cm deep (a surface course), and look like the
     exposed aggregate of a pothole's floor."""
-    from roadtwin_core.looks import defect_material
-
     L, W, D, T = 9.0, 0.8, 0.02, 0.5
     m = make(types, "ravelling", length_m=L, width_m=W, depth_m=D, taper_m=T, wander_m=0.0)
     b = W / 2
@@ -269,7 +267,7 @@ def test_ravelling_is_a_long_shallow_wheel_path_strip_with_the_ruts_volume(types
         ext = np.ptp(s.footprint, axis=0)
         assert ext[0] / ext[1] > 2.5 and 2.9 <= ext[0] <= 15.1 and 0.39 <= ext[1] <= 1.35
         assert 0.01 - 1e-12 <= s.depth_m <= 0.03 + 1e-12
-    assert defect_material("ravelling") == defect_material("pothole")
+    assert types["ravelling"].material == types["pothole"].material == "pothole"   # lost surface course
 
 
 def test_rut_taper_longer_than_half_names_taper(types):

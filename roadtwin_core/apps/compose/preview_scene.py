@@ -45,6 +45,7 @@ class PreviewTown:
     placements: list[Placement]
     markings: list = field(default_factory=list)
     looks_layer: Path | None = None
+    defect_materials: dict[str, str] = field(default_factory=dict)   # defect type -> catalog material
     _geometry: object = field(default=None, init=False, repr=False, compare=False)
 
     def lanes(self):
@@ -174,7 +175,7 @@ class PreviewTown:
                     uv[sel] = np.asarray(defect_st(self.placements[k], corners), np.float32).reshape(-1, 3, 2)
         # materials: only those of the faces kept, decoded once each (a 1024 px material is ~30 MB)
         stage_mats = _stage_materials(self.looks_layer)
-        p_mat = [defect_material_name(p) for p in self.placements]
+        p_mat = [defect_material_name(p, self.defect_materials) for p in self.placements]
         names = sorted({p_mat[i] for i in np.unique(place[defect])} | {g.mats[k] for k in np.unique(part[~defect])})
         materials, slot = [DEFAULT_MATERIAL], {}
         for name in names:

@@ -9,7 +9,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -17,6 +17,7 @@ from ...atomic import atomic_output_dir, scratch_dir
 from ...contracts import configured
 from ...errors import RoadtwinError
 from ...executors import SerialExecutor, make_executor
+from ...looks.catalog import DEFAULT_DEFECT_MATERIAL, all_materials
 from ...looks.prefetch import TexturePrefetch, TexturesNow
 from ...looks.road_textures import RoadLooks, resolve_road_looks
 from ...model import ComposeRules, DefectModel, Placement, TownLayout
@@ -107,16 +108,27 @@ def add_library_folder(library: dict[str, list[DefectModel]], rules: ComposeRule
     return rules.replace(type_weights=weights)
 
 
-def type_semantics(pm: PluginManager, types) -> dict[str, tuple[str, bool]]:
-    """Per defect type: its semantic class (the type's optional ``semantic_class``, default
-    ``road_defect``; a look-alike says ``road_lookalike``) and whether it lies along travel (its
-    optional ``along_travel``). A type only a library folder brings (no registered generator)
-    gets the defaults."""
+class TypeTraits(NamedTuple):
+    """What a defect type says of itself (contracts.DefectType's optional attributes)."""
+    semantic_class: str     # default road_defect; a look-alike says road_lookalike
+    along_travel: bool      # yawed with the lane (ruts)
+    material: str           # the catalog material its surface wears (default worn asphalt)
+
+
+def type_semantics(pm: PluginManager, types) -> dict[str, TypeTraits]:
+    """Per defect type, its :class:`TypeTraits`. A type only a library folder brings (no
+    registered generator) gets the defaults; a material the catalog does not author is refused."""
     registered = pm.registry("defect_types")
+    known = set(all_materials())
     out = {}
     for t in sorted(types):
         dtype = registered.get(t)
-        out[t] = (str(getattr(dtype, "semantic_class", DEFECT_CLASS)), bool(getattr(dtype, "along_travel", False)))
+        material = str(getattr(dtype, "material", DEFAULT_DEFECT_MATERIAL))
+        if material not in known:
+            raise RoadtwinError(f"defect type {t!r}: material {material!r} is not one the looks catalog authors "
+                                f"(roadtwin_core.looks.all_materials())")
+        out[t] = TypeTraits(str(getattr(dtype, "semantic_class", DEFECT_CLASS)),
+                            bool(getattr(dtype, "along_travel", False)), material)
     return out
 
 
@@ -247,8 +259,9 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
     rng = np.random.default_rng(rules.seed)
     kinds = type_semantics(pm, set(library) | {p.model.defect_type for p in fixed})
     placements = place_defects(layout.segments, library, rules, rng, str(layout_path), fixed,
-                               along_travel=ALONG_TRAVEL | {t for t, (_, along) in kinds.items() if along})
-    semantic = {t: cls for t, (cls, _) in kinds.items()}
+                               along_travel=ALONG_TRAVEL | {t for t, k in kinds.items() if k.along_travel})
+    semantic = {t: k.semantic_class for t, k in kinds.items()}
+    defect_materials = {t: k.material for t, k in kinds.items()}
     t_place = time.perf_counter()
 
     bounds = _bounds(layout, pad=2.0)
@@ -296,11 +309,12 @@ def _compose(layout_path: Path, outdir, layout: TownLayout, rules: ComposeRules,
         def start_preview():
             previewer.start(tmp / "preview.png", tmp / "town.usda",
                             f"{layout.name}: {len(layout.segments)} segments, {len(placements)} defects",
-                            PreviewTown(layout, merged, owners, placements, markings, tmp / "layers/looks.usda"))
+                            PreviewTown(layout, merged, owners, placements, markings, tmp / "layers/looks.usda",
+                                        defect_materials))
 
         town = write_town(tmp, TownParts(layout, f"layout/{layout_path.name}", merged, owners, placements,
                                          library_files, info, markings, materials, semantic_classes=semantic,
-                                         props=props, **road_looks.town_fields()),
+                                         defect_materials=defect_materials, props=props, **road_looks.town_fields()),
                           on_looks=start_preview if previewer is not None else None)
         report("write", 1, 1)
         t_written = time.perf_counter()
