@@ -28,30 +28,7 @@ from pathlib import Path
 
 from roadtwin_core.apps.drive import DriveOptions, run_drive
 
-RIG = """name = "bench"
-[[sensor]]
-name = "imu"
-type = "imu"
-rate_hz = 200
-xyz = [0.3, 0.0, 1.05]
-[[sensor]]
-name = "lidar"
-type = "lidar"
-rate_hz = 10
-xyz = [0.3, 0.0, 1.0]
-ypr_deg = [0.0, -45.0, 0.0]
-[[sensor]]
-name = "stereo"
-type = "stereo"
-rate_hz = 10
-xyz = [0.6, 0.06, 0.95]
-ypr_deg = [0.0, -12.0, 0.0]
-[sensor.params]
-width = {w}
-height = {h}
-hfov_deg = 80.0
-blur = "{blur}"
-"""
+SENSORS = "imu,lidar,stereo"    # of the default rig (the paper's platform): the issue's pair, LiDAR and IMU
 
 
 def main() -> None:
@@ -68,9 +45,8 @@ def main() -> None:
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.lower().split("x"))
     with tempfile.TemporaryDirectory() as tmp:
-        rig = Path(tmp) / "rig.toml"
-        rig.write_text(RIG.format(w=w, h=h, blur=args.blur))
-        opt = DriveOptions(route="auto", length_m=args.length, speed_kmh=args.speed, rig=rig, device=args.device,
+        opt = DriveOptions(route="auto", length_m=args.length, speed_kmh=args.speed, sensors=SENSORS,
+                           sensor_params={"stereo": {"width": w, "height": h, "blur": args.blur}}, device=args.device,
                            bag=not args.no_bag, rrd=False,
                            render_params={"device": args.render_device} if args.render_device else {})
         t0, c0 = time.perf_counter(), time.process_time()

@@ -3,6 +3,8 @@ record it on one simulation clock (options only: what the command does is
 ``roadtwin_core.apps.drive``).
 
     roadtwin drive out/town/town.usda -o out/drive --length 100 --speed 30
+    roadtwin drive out/town/town.usda -o out/drive --sensors stereo,imu --sensor-param stereo.width=1280 \\
+        --sensor-param stereo.height=720
     roadtwin drive out/town/town.usda -o out/drive --rig rig.toml --sensors imu,lidar \\
         --speed-profile out/sweep/recommendations.json
     roadtwin drive out/town/town.usda -o out/drives --routes routes.txt --executor ray   # one drive a route
@@ -45,6 +47,8 @@ def drive(
     renderer: str = typer.Option("warp", "--renderer", help="renderer plugin for the cameras"),
     rig: Optional[Path] = typer.Option(None, "--rig", help="rig file (TOML); default: the paper's platform"),
     sensors: Optional[str] = typer.Option(None, "--sensors", help="sensor names of the rig to record (default: all)"),
+    sensor_param: Optional[list[str]] = typer.Option(None, "--sensor-param", help="SENSOR.KEY=VALUE over the rig "
+                                                     "file's (e.g. stereo.width=1280); repeatable"),
     bag: bool = typer.Option(True, "--bag/--no-bag", help="write the ROS 2 bag (MCAP storage)"),
     rrd: bool = typer.Option(True, "--rerun/--no-rerun", help="write drive.rrd"),
     compressed: bool = typer.Option(False, "--compressed", help="images as sensor_msgs/CompressedImage (JPEG)"),
@@ -55,12 +59,14 @@ def drive(
 ) -> None:
     """Drive a vehicle through a town and record its sensors (ROS 2 bag, rerun, contact events)."""
     from ..apps.drive import DriveOptions, read_routes_file, run_drive
+    from ..apps.drive.rig import parse_sensor_params
 
     output_path(out, "dir")
     specs = list(route or []) + (read_routes_file(routes) if routes is not None else [])
     opt = DriveOptions(route=specs[0] if specs else "auto", length_m=length, duration_s=duration, speed_kmh=speed,
                        speed_profile=speed_profile, vehicle=vehicle, backend=backend, device=device,
-                       renderer=renderer, rig=rig, sensors=sensors, bag=bag, rrd=rrd, compressed=compressed,
+                       renderer=renderer, rig=rig, sensors=sensors,
+                       sensor_params=parse_sensor_params(sensor_param), bag=bag, rrd=rrd, compressed=compressed,
                        render_params=parse_param_options(param) if param else {}, traffic=traffic,
                        traffic_speed_kmh=traffic_speed)
     if len(specs) > 1 or routes is not None:

@@ -209,7 +209,8 @@ def _cli(*args):
                           capture_output=True, text=True, env=env, timeout=120, cwd=REPO)
 
 
-@pytest.mark.parametrize("case", ["off_road", "no_sensor", "other_vehicle", "parked_car"])
+@pytest.mark.parametrize("case", ["off_road", "no_sensor", "other_vehicle", "parked_car", "param_no_sensor",
+                                  "param_unknown_key", "param_malformed"])
 def test_bad_input_is_one_line_and_nothing_written(town, tmp_path, case):
     """A route that leaves the road, a rig without the sensor named, a sweep's speed profile for
     another vehicle, a lane with a car standing in it: one line on stderr, exit 2, and an earlier
@@ -231,6 +232,15 @@ def test_bad_input_is_one_line_and_nothing_written(town, tmp_path, case):
         prof.write_text(json.dumps([{"defect": "D00021", "vehicle": "truck", "recommended_speed_kmh": 10}]))
         args += ["--speed-profile", prof]
         expect = "is for vehicle truck"
+    elif case == "param_no_sensor":                            # a sensor the selection does not record
+        args += ["--sensor-param", "lidar.points_per_s=1000"]
+        expect = "records no sensor 'lidar'"
+    elif case == "param_unknown_key":
+        args += ["--sensor-param", "imu.colour=3"]
+        expect = "unknown parameter(s) colour"
+    elif case == "param_malformed":
+        args += ["--sensor-param", "width=1280"]
+        expect = "expected SENSOR.KEY=VALUE"
     elif case == "parked_car":
         args += ["--route", f"lane:{PARKED_LANE}"]
         expect = "runs into /Town/Props/LaneVehicles instance"
@@ -462,3 +472,19 @@ def test_cameras_developed_on_the_renderers_device_are_the_host_cameras(town, tm
     left, right = images(outs[True], "/stereo/left/image_raw"), images(outs[True], "/stereo/right/image_raw")
     assert np.abs(left[0] - right[0]).mean() > 1.0           # the right eye is its own view
     assert len(developed) == len(left)                        # one call a pair, on the forced drive only
+
+
+def test_sensor_params_over_the_rig_files(town, tiny_rig, tmp_path):
+    """``--sensor-param cam.width=40`` (``DriveOptions.sensor_params``): the camera records at the
+    size given, not the rig file's 32 x 24, and its CameraInfo says so; the rig file is untouched."""
+    from roadtwin_core.apps.drive import DriveOptions, run_drive
+
+    before = tiny_rig.read_bytes()
+    opt = DriveOptions(route=ROUTES[0], length_m=None, duration_s=0.2, speed_kmh=30.0, rig=tiny_rig, sensors="cam",
+                       sensor_params={"cam": {"width": 40, "height": 30}}, rrd=False)
+    run_drive(town, tmp_path / "out", opt, pm=PluginManager())
+    infos = [m for _, m in _bag_messages(tmp_path / "out", "/cam/camera_info")]
+    images = [m for _, m in _bag_messages(tmp_path / "out", "/cam/image_raw")]
+    assert infos and all((i.width, i.height) == (40, 30) for i in infos)
+    assert images and all((m.width, m.height, len(m.data)) == (40, 30, 40 * 30 * 3) for m in images)
+    assert tiny_rig.read_bytes() == before

@@ -23,7 +23,7 @@ from ...atomic import atomic_output_dir
 from ...errors import RoadtwinError
 from ...executors import make_executor
 from ...plugins import get_plugin_manager
-from .rig import load_rig, select
+from .rig import load_rig, override, select
 from .run import DriveOptions, check_options, load_stage, prepare_drive, run_drive
 
 __all__ = ["DriveTask", "read_routes_file", "run_drives"]
@@ -102,7 +102,8 @@ def _absolute_route(route: str) -> str:
 
 def _needs_render(opt: DriveOptions, pm) -> bool:
     rig_name, specs = load_rig(opt.rig)
-    return any(pm.get("sensors", s.type).message in ("image", "stereo") for s in select(specs, opt.sensors, rig_name))
+    chosen = override(select(specs, opt.sensors, rig_name), opt.sensor_params, rig_name)
+    return any(pm.get("sensors", s.type).message in ("image", "stereo") for s in chosen)
 
 
 def run_drives(stage: Path, out: Path, opt: DriveOptions, routes: list[str], executor: str = "local",

@@ -102,6 +102,39 @@ def select(specs: list[SensorSpec], names: str | None, rig_name: str) -> list[Se
     return [have[n] for n in wanted]
 
 
+def override(specs: list[SensorSpec], params: dict[str, dict], rig_name: str) -> list[SensorSpec]:
+    """The rig's sensors with ``params`` (sensor id -> {parameter: value}) laid over their own
+    (``roadtwin drive --sensor-param stereo.width=1280``): another resolution or noise model
+    without another rig file. A sensor the selection does not hold is one line; the parameter
+    names and values are checked by :func:`mount`, like the file's."""
+    have = {s.id for s in specs}
+    for sid in params:
+        if sid not in have:
+            raise RoadtwinError(f"--sensor-param {sid}.*: rig {rig_name!r} records no sensor {sid!r} "
+                                f"(it records: {', '.join(sorted(have))})")
+    return [SensorSpec(s.id, s.type, s.rate_hz, s.extrinsic, {**s.params, **params.get(s.id, {})}) for s in specs]
+
+
+def parse_sensor_params(items) -> dict[str, dict]:
+    """``["stereo.width=1280", "imu.gyro_noise_density=2e-4"]`` -> ``{"stereo": {"width": 1280}, ...}``
+    (values as ``--param``'s: TOML scalars)."""
+    from ...params import parse_param_options
+
+    out: dict[str, dict] = {}
+    for item in items or ():
+        sid, dot, rest = item.partition(".")
+        if not dot or not sid.isidentifier():
+            raise RoadtwinError(f"--sensor-param {item!r}: expected SENSOR.KEY=VALUE (e.g. stereo.width=1280)")
+        try:
+            (key, value), = parse_param_options([rest]).items()
+        except RoadtwinError:
+            raise RoadtwinError(f"--sensor-param {item!r}: expected SENSOR.KEY=VALUE (e.g. stereo.width=1280)") from None
+        if key in out.setdefault(sid, {}):
+            raise RoadtwinError(f"--sensor-param {sid}.{key}: given twice")
+        out[sid][key] = value
+    return out
+
+
 def mount(pm, specs: list[SensorSpec]) -> list:
     """Create each sensor through its registered type, its params checked like ``--param``."""
     out = []

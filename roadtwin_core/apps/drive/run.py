@@ -29,7 +29,7 @@ from .bag import BagWriter
 from .contacts import contact_events, defect_footprints, write_events
 from .motion import CORRIDOR_M, crop_mesh, drive_vehicle, write_trajectory
 from .obstacles import check_clear, lane_obstacles
-from .rig import load_rig, mount, select
+from .rig import load_rig, mount, override, select
 from .route import build_route, check_on_road, constant_speed, read_recommendations, speed_profile, wheel_hits
 from .rrd import RrdWriter
 from .traffic import clear_of_ego, place_traffic
@@ -42,7 +42,8 @@ __all__ = ["DriveOptions", "run_drive", "SensorState"]
 class DriveOptions:
     """What ``roadtwin drive`` takes (its options, same names): the route (``auto``, ``lane:ID,...``
     or a poses file) and how far or how long, the speed or a sweep's speed profile, the vehicle
-    file and physics backend, the rig file and which of its sensors, the renderer (and its
+    file and physics backend, the rig file, which of its sensors and parameters over its own
+    (``sensor_params``), the renderer (and its
     ``--param`` values) for the cameras, which outputs; ``dt_s`` the physics step, ``truth_rate_hz``
     the rate of the ground-truth pose (``/tf``, ``/ground_truth/odom``, rerun); ``traffic`` other
     vehicles on the lanes at ``traffic_speed_kmh`` (kinematic: seen, not felt; :mod:`.traffic`),
@@ -59,6 +60,7 @@ class DriveOptions:
     renderer: str = "warp"
     rig: Path | None = None
     sensors: str | None = None
+    sensor_params: dict = field(default_factory=dict)   # sensor id -> {parameter: value}, over the rig file's
     bag: bool = True
     rrd: bool = True
     compressed: bool = False
@@ -154,7 +156,7 @@ def prepare_drive(stage: Path, opt: DriveOptions, pm=None, loaded: dict | None =
         raise RoadtwinError(f"{stage}: no such file")
     vehicle = load_full_vehicle(opt.vehicle, VehicleParams())
     rig_name, specs = load_rig(opt.rig)
-    specs = select(specs, opt.sensors, rig_name)
+    specs = override(select(specs, opt.sensors, rig_name), opt.sensor_params, rig_name)
     sensors = mount(pm, specs)
     recommended = (read_recommendations(opt.speed_profile, vehicle.name) if opt.speed_profile is not None
                    else None)
