@@ -10,7 +10,8 @@ pothole; crack strokes closer than ``join_px`` make one instance). Each instance
 back-projected through the rig onto the flat road (:mod:`.rectify`), and :mod:`.patch` makes its
 footprint in metres, an orthographic texture patch (albedo with an alpha fade into the road,
 roughness and normal maps derived from it) and a mesh on the footprint (potholes get a depth from
-a per-type prior with ravelled walls; cracks stay flush, their grooves in the normal map, and
+a per-type prior with ravelled walls, a pothole label that is a strip along travel the 1-3 cm of
+surface course it lost; cracks stay flush, their grooves in the normal map, and
 their mesh is the label's strokes, :mod:`.strokes`: the renderer labels a defect's whole mesh, so
 a crack is labelled as thin as the photo's strokes, not over the area they span). :meth:`PhotoDefects.write` writes one library asset per
 instance (``roadtwin_core.usd.write_defect_asset``: interface + payloaded geometry, read back by
@@ -65,6 +66,11 @@ class PhotoDefectsParams:
     min_depth_m: float = field(0.02, lo=0.0, hi=0.5, doc="pothole depth prior, lower clip (m)")
     max_depth_m: float = field(0.10, lo=0.0, hi=0.5, doc="pothole depth prior, upper clip (m)")
     wall_ratio: float = field(0.35, lo=0.01, hi=2.0, doc="pothole wall width / equivalent radius")
+    strip_elongation: float = field(3.0, lo=0.0, hi=100.0, doc="a pothole label this many times longer than wide, "
+                                    "along travel, is a ravelled wheel-path strip: depth and wall from its half-width, "
+                                    "at most strip_max_depth_m (0: every pothole a bowl)")
+    strip_angle_deg: float = field(30.0, lo=0.0, hi=90.0, doc="a strip's long axis at most this far from travel (deg)")
+    strip_max_depth_m: float = field(0.03, lo=0.0, hi=0.5, doc="a strip's depth cap (m): the surface course it lost")
     ravel: float = field(0.35, lo=0.0, hi=1.0, doc="relative amplitude of the ravelled wall noise")
     lane_width_m: float = field(0.0, lo=0.0, hi=10.0, doc="> 0: each frame's camera pitch and height from its "
                                 "lane lines (the class map's lane class, this wide in m; lane_rig.py), for photos "
@@ -143,7 +149,9 @@ class PhotoDefects:
         pp = PatchParams(texel_m=p.texel_m, fade_m=p.fade_m, edge_m=p.edge_m, max_texels=p.max_texels,
                          depth_ratio=p.depth_ratio, min_depth_m=p.min_depth_m, max_depth_m=p.max_depth_m,
                          wall_ratio=p.wall_ratio, ravel=p.ravel, road_albedo=p.road_albedo,
-                         crack_strokes=p.crack_strokes, stroke_gap_m=p.stroke_gap_m)
+                         crack_strokes=p.crack_strokes, stroke_gap_m=p.stroke_gap_m,
+                         strip_elongation=p.strip_elongation, strip_angle_deg=p.strip_angle_deg,
+                         strip_max_depth_m=p.strip_max_depth_m)
         names: set[str] = set()
         out: list[PhotoInstance] = []
         skipped: list[dict] = []
@@ -221,7 +229,8 @@ class PhotoDefects:
                 record = {"reconstructor": self.name, "frame": str(img), "label": str(lab), "instance": k,
                           "class": cname, "pixels": npx, "bbox_px": list(bbox),
                           "footprint_area_m2": round(patch.area_m2, 6), "texel_m": patch.grid.texel,
-                          "prior_depth_m": round(patch.depth_m, 5), "rig": asdict(rig), "license": license_text,
+                          "prior_depth_m": round(patch.depth_m, 5),
+                          "relief": patch.relief, "rig": asdict(rig), "license": license_text,
                           "range_m": round(range_m, 3)}
                 try:
                     model = DefectModel(name, dtype, patch.vertices, patch.faces, patch.boundary, params=record,

@@ -20,6 +20,12 @@ numpy, OpenCV, scipy, shapely, triangle).
    (smoothstep of the distance inside the label) and is *ravelled*: seeded band-limited noise of
    relative amplitude ``ravel`` on the wall (strongest mid-wall) plus a floor roughness, never
    above the road; outside the label (the fade band) z = 0.
+   A pothole label that is a *strip along travel* (``strip_elongation`` x longer than wide, its
+   long axis within ``strip_angle_deg`` of the direction of travel: the ravelled or patched
+   wheel paths some surveys label pothole, as road_defects_br's RS_290 does) lost its surface
+   course, not a bowl: its depth and wall scale with its half-width, capped at
+   ``strip_max_depth_m`` (the 1-3 cm of the ``ravelling`` defect type), not with the radius of
+   a disc of its area (a 6 m x 0.8 m strip would otherwise be a 10 cm trench).
    ``depression``: the same with half the depth and no ravelling. Every other type (crack,
    patch, ...) stays flush (z = 0); its relief lives in the normal map.
 4. **Textures** (top view, travel upwards): albedo RGBA (alpha 1 on the label, falling linearly
@@ -68,6 +74,9 @@ class PatchParams:
     road_albedo: float = 0.12     # linear luminance the road around the defect is scaled to (0: keep the photo's)
     crack_strokes: bool = True    # a crack's mesh (and so its label) = its strokes (strokes.py); False: the area
     stroke_gap_m: float = 0.01    # width of the bridges between strokes and of the slits opening holes
+    strip_elongation: float = 3.0  # a pothole this many times longer than wide, along travel, is a strip (0: never)
+    strip_angle_deg: float = 30.0  # the strip's long axis at most this far from the direction of travel
+    strip_max_depth_m: float = 0.03
     stroke_core_px: int = 1       # crack strokes' colour: their darkest texel within this radius (0: the label's own)
 
 
@@ -85,6 +94,18 @@ class Patch:
     boundary: np.ndarray        # indices 0..n-1
     st: np.ndarray              # (N, 2) texture coordinates of the vertices
     depth_m: float              # the prior depth used (0 = flush)
+    relief: str = "flush"       # "bowl", "strip" (a pothole label along travel: surface course lost) or "flush"
+
+
+def footprint_shape(xy: np.ndarray) -> tuple[float, float, float]:
+    """Length and width (m) of a footprint's points along their principal axes, and the long
+    axis's angle to the direction of travel (+x), in degrees, 0-90."""
+    c = xy - xy.mean(axis=0)
+    _, vecs = np.linalg.eigh(np.cov(c.T))
+    major, minor = vecs[:, 1], vecs[:, 0]
+    length, width = float(np.ptp(c @ major)), float(np.ptp(c @ minor))
+    angle = math.degrees(math.atan2(abs(major[1]), abs(major[0])))
+    return length, width, angle
 
 
 def _smoothstep(t):
@@ -251,9 +272,16 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     # relief
     r_eq = math.sqrt(area / math.pi)
     z = np.zeros(len(verts))
-    depth = 0.0
+    depth, relief = 0.0, "flush"
     if defect_type in DEEP_TYPES:
-        depth = DEEP_TYPES[defect_type] * float(np.clip(p.depth_ratio * r_eq, p.min_depth_m, p.max_depth_m))
+        depth, relief = DEEP_TYPES[defect_type] * float(np.clip(p.depth_ratio * r_eq, p.min_depth_m, p.max_depth_m)), "bowl"
+        if defect_type in RAVELLED and p.strip_elongation > 0:
+            length, width, angle = footprint_shape(grid.to_xy(np.column_stack([rr, cc])))
+            width += t                                      # texel centres -> the footprint's extent
+            if length + t >= p.strip_elongation * width and angle <= p.strip_angle_deg:
+                r_eq = width / 2                            # depth and wall from the half-width
+                floor = min(p.min_depth_m / 2, p.strip_max_depth_m)   # 1-3 cm by default, as the ravelling type
+                depth, relief = float(np.clip(p.depth_ratio * r_eq, floor, p.strip_max_depth_m)), "strip"
         rc = grid.to_rc(verts)
         d_in = cv2.remap(inside.astype(np.float32), rc[:, 1].astype(np.float32)[None], rc[:, 0].astype(np.float32)[None],
                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)[0]
@@ -302,4 +330,4 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     # texture coordinates: s = column / cols, t = 1 - row / rows (texel edges)
     rc = grid.to_rc(verts)
     st = np.column_stack([(rc[:, 1] + 0.5) / grid.cols, 1.0 - (rc[:, 0] + 0.5) / grid.rows])
-    return Patch(grid, albedo, roughness, normal, foot, area, centroid, verts3, faces, np.arange(n), st, depth)
+    return Patch(grid, albedo, roughness, normal, foot, area, centroid, verts3, faces, np.arange(n), st, depth, relief)

@@ -175,3 +175,22 @@ def test_lane_lines_give_each_frame_its_rig(tmp_path):
     assert abs(preset.area_m2 / true_area - 1) > 0.1            # the preset's rig puts it elsewhere, at another size
     with pytest.raises(RoadtwinError, match="lane class"):
         PhotoDefects().run({**inputs, "lane_classes": {}}, PhotoDefectsParams(lane_width_m=3.5))
+
+
+@pytest.mark.parametrize("axes, relief, depth", [
+    ((2.5, 0.25), "strip", 0.03),                                      # 5 m x 0.5 m along travel: the cap
+    ((0.25, 1.25), "bowl", 0.10),                                      # as long, across travel: a bowl, capped
+    ((0.45, 0.3), "bowl", 0.25 * np.sqrt(0.45 * 0.3))])                # compact: 0.25 x the equivalent radius
+def test_a_pothole_strip_along_travel_is_shallow_a_bowl_is_not(tmp_path, axes, relief, depth):
+    """A pothole label that is a long strip along the wheel path (what road_defects_br's RS_290
+    labels pothole: ravelled or patched pavement) lost its surface course: its prior depth is capped
+    at 3 cm, not the 10 cm a disc of its area would give. The same strip across travel, and a
+    compact hole, keep the bowl prior (closed form: depth_ratio x sqrt(area / pi), clipped 2-10 cm)."""
+    image, label = render_photo(SURVEY, (8.0, 0.3), axes)
+    img = save_pair(tmp_path, "frame", image, label)
+    res = PhotoDefects().run({"images": [img], "labels": tmp_path / "labels", "classes": CLASSES, "rig": SURVEY,
+                              "license": "CC0 (made by the test)"}, PhotoDefectsParams(texel_m=0.01))
+    (inst,) = res.instances
+    m = inst.model
+    assert m.params["relief"] == relief and m.params["prior_depth_m"] == pytest.approx(depth, rel=0.03)
+    assert m.depth_m <= depth * 1.1 and m.defect_type == "pothole"         # the floor's ravelling: +8 % at most
