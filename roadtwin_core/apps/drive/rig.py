@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import RoadtwinError
-from ...params import check_params
+from ...params import check_params, parse_param_options
 
 DEFAULT_RIG = Path(__file__).with_name("default_rig.toml")
 KEYS = {"name", "type", "rate_hz", "xyz", "ypr_deg", "params"}
@@ -118,8 +118,6 @@ def override(specs: list[SensorSpec], params: dict[str, dict], rig_name: str) ->
 def parse_sensor_params(items) -> dict[str, dict]:
     """``["stereo.width=1280", "imu.gyro_noise_density=2e-4"]`` -> ``{"stereo": {"width": 1280}, ...}``
     (values as ``--param``'s: TOML scalars)."""
-    from ...params import parse_param_options
-
     out: dict[str, dict] = {}
     for item in items or ():
         sid, dot, rest = item.partition(".")
