@@ -20,14 +20,12 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
-import shapely
 from scipy.spatial import Voronoi
-from shapely import affinity
-from shapely.geometry import LineString, MultiLineString, Point, Polygon
+from shapely.geometry import LineString, MultiLineString, Point
 
 from roadtwin_core import DefectModel, RoadtwinError, check_params, field
 
-from ._mesh import build_defect, densify_closed, densify_open
+from .crack import groove_network
 
 
 class Alligator:
@@ -63,21 +61,7 @@ class Alligator:
         spacing = float(np.clip(0.6 * w, 0.004, 0.015))  # loop spacing along the grooves
         clearance = w + 1.5 * spacing                   # gaps between grooves stay >= 1.5 loop spacings
         lines = cell_tree(rng, p.length_m, p.width_m, p.cell_m, p.jitter, 1.4 * clearance, clearance)
-        net = MultiLineString([LineString(c) for c in lines])
-        foot = net.buffer(w / 2, quad_segs=3).simplify(0.1 * w)
-        if not isinstance(foot, Polygon) or len(foot.interiors) or not foot.is_valid:
-            raise RoadtwinError(f"{owner}: crack cells did not buffer to one simple polygon (internal error)")
-        centre = np.asarray(foot.centroid.coords[0])
-        loop = densify_closed(np.asarray(foot.exterior.coords)[:-1], spacing) - centre
-        centrelines = [(densify_open(c - centre, spacing), False) for c in lines]
-        net = affinity.translate(net, -centre[0], -centre[1])
-
-        def height(xy: np.ndarray) -> np.ndarray:
-            d = shapely.distance(net, shapely.points(xy))
-            return -D * np.clip(1.0 - d / (w / 2), 0.0, 1.0)
-
-        return build_defect(name=name, defect_type=self.name, params=p, loop=loop, height=height,
-                            extra_lines=centrelines, min_angle=None, margin=0.0)
+        return groove_network(lines, w, D, spacing, name=name, defect_type=self.name, params=p)
 
 
 def cell_tree(rng: np.random.Generator, length: float, width: float, cell: float, jitter: float,

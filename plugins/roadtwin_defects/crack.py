@@ -54,24 +54,32 @@ class Crack:
         clearance = w + 1.5 * spacing  # gaps between branches stay >= 1.5 loop spacings
         step = max(1.6 * clearance, p.extent_m / 25)  # a branch clears its parent in one step
         lines = _grow_tree(rng, p.extent_m, step, clearance, int(p.branches), p.tortuosity)
-        net = MultiLineString([LineString(c) for c in lines])
+        return groove_network(lines, w, D, spacing, name=name, defect_type=self.name, params=p)
 
-        foot = net.buffer(w / 2, quad_segs=3).simplify(0.1 * w)
-        if not isinstance(foot, Polygon) or len(foot.interiors) or not foot.is_valid:
-            raise RoadtwinError(f"{owner}: crack network did not buffer to one simple polygon (internal error)")
-        loop = densify_closed(np.asarray(foot.exterior.coords)[:-1], spacing)
-        # Centre the local frame on the footprint.
-        centre = np.asarray(foot.centroid.coords[0])
-        loop = loop - centre
-        centrelines = [(densify_open(c - centre, spacing), False) for c in lines]
-        net = affinity.translate(net, -centre[0], -centre[1])
 
-        def height(xy: np.ndarray) -> np.ndarray:
-            d = shapely.distance(net, shapely.points(xy))
-            return -D * np.clip(1.0 - d / (w / 2), 0.0, 1.0)
+def groove_network(lines: list[np.ndarray], w: float, D: float, spacing: float, *, name: str, defect_type: str,
+                   params) -> DefectModel:
+    """Centrelines (a tree: no closed loop) -> the model of their V-grooves, ``w`` wide and ``D``
+    deep on the centreline: the footprint is their buffer (one polygon without holes), centred on
+    its centroid, the centrelines kept as triangle edges so the groove bottoms are sharp."""
+    net = MultiLineString([LineString(c) for c in lines])
+    foot = net.buffer(w / 2, quad_segs=3).simplify(0.1 * w)
+    if not isinstance(foot, Polygon) or len(foot.interiors) or not foot.is_valid:
+        raise RoadtwinError(f"defect type {defect_type}: crack network did not buffer to one simple polygon "
+                            f"(internal error)")
+    loop = densify_closed(np.asarray(foot.exterior.coords)[:-1], spacing)
+    # Centre the local frame on the footprint.
+    centre = np.asarray(foot.centroid.coords[0])
+    loop = loop - centre
+    centrelines = [(densify_open(c - centre, spacing), False) for c in lines]
+    net = affinity.translate(net, -centre[0], -centre[1])
 
-        return build_defect(name=name, defect_type=self.name, params=p, loop=loop, height=height,
-                            extra_lines=centrelines, min_angle=None, margin=0.0)
+    def height(xy: np.ndarray) -> np.ndarray:
+        d = shapely.distance(net, shapely.points(xy))
+        return -D * np.clip(1.0 - d / (w / 2), 0.0, 1.0)
+
+    return build_defect(name=name, defect_type=defect_type, params=params, loop=loop, height=height,
+                        extra_lines=centrelines, min_angle=None, margin=0.0)
 
 
 def _grow_tree(rng: np.random.Generator, extent: float, step: float, clearance: float,
