@@ -121,3 +121,17 @@ def test_real_crack_frames_reconstruct_with_nothing_on_stderr(tmp_path):
     r = run_cli("reconstruct", "photos", *REAL_FRAMES, "--labels", REAL / "labels", "-o", tmp_path / "lib")
     assert r.returncode == 0, r.stderr
     assert r.stderr == "" and "crack" in r.stdout, r.stderr
+
+
+def test_a_class_filled_from_several_types_is_named_by_its_own_type_else_the_first():
+    """road_defects_br fills crack from crack and alligator, pothole from pothole and ravelling: a
+    photo's labelled crack is a crack asset (the type named like the class), whatever the order or
+    alphabet; a class no type is named like takes the first type in the map's order."""
+    from roadtwin_core.apps.reconstruct.inputs import defect_classes
+    from roadtwin_core.render.classmap import ClassMap
+
+    types = {"alligator", "crack", "pothole", "ravelling", "rut", "depression"}
+    cmap = ClassMap("t", ("background", "crack", "pothole", "dent"),
+                    {"alligator": "crack", "crack": "crack", "ravelling": "pothole", "pothole": "pothole",
+                     "rut": "dent", "depression": "dent"}, {}, "background")
+    assert defect_classes(cmap, types) == {1: ("crack", "crack"), 2: ("pothole", "pothole"), 3: ("dent", "rut")}

@@ -215,11 +215,14 @@ class PhotoSet:
 def defect_classes(classmap: ClassMap, defect_types: Collection[str]) -> dict[int, tuple[str, str]]:
     """{dataset class id: (class name, defect type)} for every class the map fills from one of
     ``defect_types`` by a plain entry (an ``ego`` rule's labels are the lane, not a defect); the
-    first such type of a class names it."""
+    type named like the class names it (road_defects_br's crack is filled from crack and alligator:
+    a photo's crack is a crack), else the first such type in the map's order."""
     out: dict[int, tuple[str, str]] = {}
-    for label, cls in sorted(classmap.plain.items()):
+    for label, cls in classmap.plain.items():
         if label in defect_types and cls in classmap.classes:
-            out.setdefault(classmap.classes.index(cls), (cls, label))
+            cid = classmap.classes.index(cls)
+            if cid not in out or (label == cls and out[cid][1] != cls):
+                out[cid] = (cls, label)
     return dict(sorted(out.items()))
 
 
