@@ -38,16 +38,27 @@ from _perception_report import iou_table
 from _perception_train import evaluate, to_device
 
 
-def synthetic_sources(folder) -> set[str] | None:
-    """Stems of the real frames whose pixels entered the synthetic set, or None (not recorded)."""
+def _sources_record(folder) -> tuple[set[str], set[str]] | None:
+    """(every real frame stem whose pixels entered the synthetic set, those whose labelled defects
+    it wears as photo library assets), read once from its ``sources.json``; None (not recorded).
+    A record made before scenes were kept counts all its frames as defect sources."""
     path = Path(folder) / SOURCES_FILE
     if not path.is_file():
         return None
     try:
-        frames = json.loads(path.read_text())["frames"]
-        return {frame_stem(f) for f in frames}
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        record = json.loads(path.read_text())
+        every = {frame_stem(f) for f in record["frames"]}
+        if "scenes" not in record:
+            return every, every
+        return every, {frame_stem(f) for scene in record["scenes"].values() for f in scene["defect_assets"].values() if f}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise RoadtwinError(f"{path}: not a provenance record of bench/synthetic_set.py ({exc.__class__.__name__})") from None
+
+
+def synthetic_sources(folder) -> set[str] | None:
+    """Stems of the real frames whose pixels entered the synthetic set, or None (not recorded)."""
+    record = _sources_record(folder)
+    return None if record is None else record[0]
 
 
 def check_leak(folder, sources: set[str] | None, held: list[str], where: str) -> bool:
@@ -66,21 +77,6 @@ def check_leak(folder, sources: set[str] | None, held: list[str], where: str) ->
     return True
 
 
-def defect_source_frames(folder) -> set[str] | None:
-    """Stems of the real frames whose *labelled defects* the synthetic set wears (photo library
-    assets), or None (no provenance). A set recorded before scenes were kept: all its frames."""
-    path = Path(folder) / SOURCES_FILE
-    if not path.is_file():
-        return None
-    try:
-        record = json.loads(path.read_text())
-        if "scenes" not in record:
-            return {frame_stem(f) for f in record["frames"]}
-        return {frame_stem(f) for scene in record["scenes"].values() for f in scene["defect_assets"].values() if f}
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
-        raise RoadtwinError(f"{path}: not a provenance record of bench/synthetic_set.py ({exc.__class__.__name__})") from None
-
-
 def check_selection_sources(synthetic, select_dir, stems: list[str]) -> dict | None:
     """Refuse a selection folder whose frames lent their labelled defects to the synthetic set:
     a choice made there would reward recognising its own pothole and crack pixels (the photo
@@ -88,9 +84,10 @@ def check_selection_sources(synthetic, select_dir, stems: list[str]) -> dict | N
     only label-free road texture are counted, not refused. None when there is nothing to check."""
     if synthetic is None:
         return None
-    defects, every = defect_source_frames(synthetic), synthetic_sources(synthetic)
-    if every is None:
+    record = _sources_record(synthetic)
+    if record is None:
         return {"sources_known": False}
+    every, defects = record
     held = [frame_stem(s) for s in stems]
     leaked = sorted(s for s in held if s in defects)
     if leaked:

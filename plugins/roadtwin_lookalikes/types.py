@@ -38,7 +38,6 @@ class _LookAlike:
     description = ""
     semantic_class = SEMANTIC_CLASS
     along_travel = False
-    material = "worn"       # each type names its own finish (contracts.DefectType)
 
     def _footprint(self, p, rng: np.random.Generator) -> Footprint:
         raise NotImplementedError

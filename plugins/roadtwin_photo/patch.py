@@ -274,7 +274,8 @@ def make_patch(image: np.ndarray, mask: np.ndarray, rig: PhotoRig, defect_type: 
     z = np.zeros(len(verts))
     depth, relief = 0.0, "flush"
     if defect_type in DEEP_TYPES:
-        depth, relief = DEEP_TYPES[defect_type] * float(np.clip(p.depth_ratio * r_eq, p.min_depth_m, p.max_depth_m)), "bowl"
+        depth = DEEP_TYPES[defect_type] * float(np.clip(p.depth_ratio * r_eq, p.min_depth_m, p.max_depth_m))
+        relief = "bowl"
         if defect_type in RAVELLED and p.strip_elongation > 0:
             length, width, angle = footprint_shape(grid.to_xy(np.column_stack([rr, cc])))
             width += t                                      # texel centres -> the footprint's extent

@@ -4,22 +4,17 @@ hexagonal tiling of its cell size has (a closed form), labelled crack under road
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 
-import cv2
 import numpy as np
 import pytest
 
-from roadtwin_core import ComposeRules, FixedDefect, PluginManager, RoadtwinError, TownLayout
-from roadtwin_core.apps.compose.run import compose
-from roadtwin_core.apps.render import RenderOptions, run_render
-from roadtwin_core.render.cameras import RIG_PRESETS, look_from
+from roadtwin_core import FixedDefect, PluginManager, RoadtwinError
 from roadtwin_core.render.classmap import load_class_map
-from roadtwin_core.usd import validate_stage, write_layout
+from roadtwin_core.usd import validate_stage
 
 from test_defect_types import assert_valid_defect
-from test_ravelling import LANE_W, _strip, pm  # noqa: F401  (pm: the fixture, for these tests too)
+from test_ravelling import LANE_W, pm, survey_frame, wheel_path_town  # noqa: F401  (pm: the fixture, here too)
 
 
 @pytest.fixture(scope="module")
@@ -76,33 +71,11 @@ def test_composed_and_rendered_its_grooves_are_crack_and_darker_than_the_lane(pm
     """A 3 m x 0.8 m alligator area in the right wheel path of a straight road composes into a
     stage that validates; through the survey rig from 8 m behind, its pixels are crack under
     road_defects_br and darker than the lane around them (the crack finish)."""
-    segs = []
-    for i, x in enumerate((0.0, 20.0)):
-        x1 = x + 20.0
-        segs += [_strip(f"r{i}", "driving", x, x1, -LANE_W, 0.0, np.array([[x, -LANE_W / 2], [x1, -LANE_W / 2]])),
-                 _strip(f"l{i}", "driving", x, x1, 0.0, LANE_W, np.array([[x1, LANE_W / 2], [x, LANE_W / 2]]))]
-    layout = TownLayout("Town", segs, ComposeRules(defect_count=0, seed=1, surface="flat", models_per_type=1,
-                                                   type_weights={"pothole": 1.0}))
-    layout.fixed = [FixedDefect("A0", "alligator", {"length_m": 3.0, "width_m": 0.8, "cell_m": 0.2, "groove_m": 0.02,
-                                                    "depth_m": 0.008}, x=12.0, y=-LANE_W / 2 - 0.85, seed=0)]
-    write_layout(layout, tmp_path / "road.usda")
-    town = compose(tmp_path / "road.usda", tmp_path / "town", preview=False, executor="serial", pm=pm).town
+    area = FixedDefect("A0", "alligator", {"length_m": 3.0, "width_m": 0.8, "cell_m": 0.2, "groove_m": 0.02,
+                                           "depth_m": 0.008}, x=12.0, y=-LANE_W / 2 - 0.85, seed=0)
+    town = wheel_path_town(pm, tmp_path, area, shoulder=False)
     assert not [f for f in validate_stage(town) if f.severity == "Error"]
-    rig = RIG_PRESETS["survey"]
-    poses = tmp_path / "poses.json"
-    poses.write_text(json.dumps([{"cam_to_world": look_from((12.0 - 1.5 - 8.0, -LANE_W / 2, rig.height_m), 0.0,
-                                                            math.radians(rig.pitch_deg)).tolist()}]))
-    out = tmp_path / "r"
-    run_render(town, out, RenderOptions(rig="survey", size="512x320", frames=1, poses=poses, formats="mmseg,coco",
-                                        executor="serial", classmap="builtin:road_defects_br"), pm=pm)
-    meta = json.loads((out / "meta.json").read_text())
-    (fr,) = meta["frames"]
-    (area_id,) = [i["id"] for i in meta["instances"] if i["type"] == "alligator"]
-    labels = cv2.imread(str(out / fr["files"]["semantic"]), cv2.IMREAD_UNCHANGED)
-    inst = cv2.imread(str(out / fr["files"]["instance"]), cv2.IMREAD_UNCHANGED)
-    rgb = cv2.imread(str(out / fr["files"]["rgb"]), cv2.IMREAD_GRAYSCALE).astype(float)
-    cmap = load_class_map("road_defects_br")
-    sel = inst == area_id
+    sel, labels, rgb, cmap = survey_frame(town, pm, tmp_path / "frame", 12.0 - 1.5 - 8.0, "512x320", "alligator")
     assert sel.sum() > 100                                           # the grooves reach many pixels
     assert (labels[sel] == cmap.classes.index("crack")).mean() > 0.95
     lane = (labels == cmap.classes.index("ego_lane")) & ~sel

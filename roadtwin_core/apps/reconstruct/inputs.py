@@ -221,7 +221,7 @@ def defect_classes(classmap: ClassMap, defect_types: Collection[str]) -> dict[in
     for label, cls in classmap.plain.items():
         if label in defect_types and cls in classmap.classes:
             cid = classmap.classes.index(cls)
-            if cid not in out or (label == cls and out[cid][1] != cls):
+            if cid not in out or label == cls:
                 out[cid] = (cls, label)
     return dict(sorted(out.items()))
 
